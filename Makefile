@@ -1,0 +1,35 @@
+# omnisonar: the two commands a newcomer needs are `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: setup test lint demo bench serve clean
+
+setup: $(STAMP)
+
+# Reinstall only when the project metadata changes (idempotent: a second run does nothing).
+$(STAMP): pyproject.toml
+	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+lint: $(STAMP)
+	$(BIN)/ruff check mapping localization service tests benchmarks
+	$(BIN)/mypy mapping localization service
+
+test: lint
+	$(BIN)/python -m pytest
+
+demo: $(STAMP)
+	$(BIN)/python -m service demo --out out/demo
+
+bench: $(STAMP)
+	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
+
+serve: $(STAMP)
+	$(BIN)/python -m service serve
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

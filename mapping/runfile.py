@@ -1,0 +1,177 @@
+"""Run file format v1 (``.npz``): the unit of data everything else exchanges.
+
+Keys (all required unless marked optional):
+
+``format``          "omnisonar-run-1"
+``sonar``           JSON text of the :class:`~mapping.signal.SonarConfig`
+``samples``         float32 (n_blocks, block_samples): microphone signal, direct wave removed;
+                    block k starts at sample k * block_samples of the run
+``t_s``             float64 (n_blocks,): block start times in seconds
+``speed_m_s``       float64 (n_blocks,): odometry speed over the block (negative = reversing)
+``yaw_rate_rad_s``  float64 (n_blocks,): odometry yaw rate over the block
+``pose``            float64 (n_blocks, 3): tracked x_m, y_m, heading_rad (direction of travel)
+                    at the block midpoint; NaN rows where untracked
+``scene``           optional JSON text of the scene the run was simulated in
+``meta``            optional JSON text (engine, path, seed, ...)
+
+Writes go to a temporary name in the same directory and are renamed into place, so an
+interrupted write never leaves a corrupt file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mapping.signal import SonarConfig
+
+FORMAT = "omnisonar-run-1"
+
+
+@dataclass(frozen=True)
+class Run:
+    """A tracked (or untracked) sonar run held in memory; see the module docstring."""
+
+    config: SonarConfig
+    samples: NDArray[np.float32]
+    t_s: NDArray[np.float64]
+    speed_m_s: NDArray[np.float64]
+    yaw_rate_rad_s: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    scene: str | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        validate_run(self)
+
+    @property
+    def n_blocks(self) -> int:
+        """Number of blocks in the run."""
+        return int(self.samples.shape[0])
+
+    def block(self, k: int) -> NDArray[np.float32]:
+        """Samples of block ``k``."""
+        if not 0 <= k < self.n_blocks:
+            raise ValueError(f"block index must be in 0..{self.n_blocks - 1}, got {k}")
+        return self.samples[k]
+
+    def neighbourhood(self, k: int, margin: int) -> tuple[NDArray[np.float64], int, int]:
+        """Block ``k`` with up to ``margin`` samples of its neighbours on each side.
+
+        Returns ``(samples, left, right)``: the extended samples and how many samples were
+        taken from the previous and the next block (fewer at the ends of the run).
+        """
+        blk = self.block(k).astype(np.float64)
+        left = min(margin, self.samples.shape[1]) if k > 0 else 0
+        right = min(margin, self.samples.shape[1]) if k < self.n_blocks - 1 else 0
+        parts = []
+        if left:
+            parts.append(self.samples[k - 1, -left:].astype(np.float64))
+        parts.append(blk)
+        if right:
+            parts.append(self.samples[k + 1, :right].astype(np.float64))
+        return np.concatenate(parts), left, right
+
+
+def validate_run(run: Run) -> None:
+    """Raise ``ValueError`` naming the first inconsistent field of ``run``."""
+    b = run.config.block_samples
+    s = run.samples
+    if s.ndim != 2 or s.shape[1] != b:
+        raise ValueError(f"run.samples must have shape (n_blocks, {b}), got {s.shape}")
+    if s.dtype != np.float32:
+        raise ValueError(f"run.samples must be float32, got {s.dtype}")
+    if not np.all(np.isfinite(s)):
+        raise ValueError("run.samples contains NaN or inf")
+    n = s.shape[0]
+    for name in ("t_s", "speed_m_s", "yaw_rate_rad_s"):
+        arr = getattr(run, name)
+        if arr.shape != (n,):
+            raise ValueError(f"run.{name} must have shape ({n},), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"run.{name} contains NaN or inf")
+    if run.pose.shape != (n, 3):
+        raise ValueError(f"run.pose must have shape ({n}, 3), got {run.pose.shape}")
+    partial = np.isnan(run.pose).any(axis=1) & ~np.isnan(run.pose).all(axis=1)
+    if partial.any():
+        raise ValueError(
+            f"run.pose rows must be all finite or all NaN; row {int(np.argmax(partial))} is mixed"
+        )
+    if np.isinf(run.pose).any():
+        raise ValueError("run.pose contains inf")
+
+
+def write_run(path: str | os.PathLike[str], run: Run) -> Path:
+    """Write ``run`` atomically to ``path`` (a ``.npz``); returns the final path."""
+    path = Path(path)
+    arrays: dict[str, Any] = {
+        "format": np.array(FORMAT),
+        "sonar": np.array(run.config.to_json()),
+        "samples": run.samples,
+        "t_s": run.t_s,
+        "speed_m_s": run.speed_m_s,
+        "yaw_rate_rad_s": run.yaw_rate_rad_s,
+        "pose": run.pose,
+        "meta": np.array(json.dumps(run.meta, sort_keys=True)),
+    }
+    if run.scene is not None:
+        arrays["scene"] = np.array(run.scene)
+    atomic_savez(path, arrays)
+    return path
+
+
+def atomic_savez(path: Path, arrays: dict[str, Any]) -> None:
+    """``np.savez`` to a temporary file beside ``path``, then rename over it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_run(path: str | os.PathLike[str]) -> Run:
+    """Read and validate a run file; ``ValueError`` with the file and key on any problem."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # zipfile/np errors on truncated or foreign files
+        raise ValueError(f"{path}: not a readable .npz run file ({exc})") from exc
+    fmt = str(data.get("format", ""))
+    if fmt != FORMAT:
+        raise ValueError(f"{path}: key 'format' must be {FORMAT!r}, got {fmt!r}")
+    missing = [k for k in ("sonar", "samples", "t_s", "speed_m_s", "yaw_rate_rad_s", "pose")
+               if k not in data]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {missing}")
+    try:
+        config = SonarConfig.from_json(str(data["sonar"]))
+        meta = json.loads(str(data["meta"])) if "meta" in data else {}
+        return Run(
+            config=config,
+            samples=np.asarray(data["samples"]),
+            t_s=np.asarray(data["t_s"], dtype=np.float64),
+            speed_m_s=np.asarray(data["speed_m_s"], dtype=np.float64),
+            yaw_rate_rad_s=np.asarray(data["yaw_rate_rad_s"], dtype=np.float64),
+            pose=np.asarray(data["pose"], dtype=np.float64),
+            scene=str(data["scene"]) if "scene" in data else None,
+            meta=meta,
+        )
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
