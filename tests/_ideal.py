@@ -1,0 +1,44 @@
+"""Ideal polar heat maps from ground-truth wall geometry (test truth for the map code).
+
+A planar wall seen from pose p echoes from the foot of the perpendicular (specular point) at
+one-way range d and bearing beta; the Doppler heat map only knows |beta - heading|. The ideal
+heat map puts a Gaussian peak at (|angle|, d) with a stated angular and range spread.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mapping.heatmap import HeatMap
+
+
+def specular_points(pose: NDArray[np.float64], segments: NDArray[np.float64]) -> list[tuple]:
+    """(range_m, bearing_rad) of every wall segment's specular point seen from ``pose``."""
+    p = np.asarray(pose[:2])
+    out = []
+    for a, b in np.asarray(segments, dtype=np.float64):
+        t = np.dot(p - a, b - a) / np.dot(b - a, b - a)
+        if 0.0 <= t <= 1.0:
+            q = a + t * (b - a)
+            d = q - p
+            out.append((float(np.hypot(*d)), float(np.arctan2(d[1], d[0]))))
+    return out
+
+
+def ideal_heatmap(
+    pose: NDArray[np.float64], segments: NDArray[np.float64], n_dirs: int = 30,
+    n_samples: int = 2048, dr: float = 340.0 / 80000.0, sigma_rad: float = 0.08,
+    sigma_m: float = 0.008, amplitude_at_1m: float = 1.0,
+) -> HeatMap:
+    """Noise-free heat map of specular echoes (+-mirror inherent: only |angle| is kept)."""
+    angles = np.pi * np.arange(n_dirs) / (n_dirs - 1)
+    ranges = dr * np.arange(n_samples)
+    H = np.zeros((n_dirs, n_samples))
+    for r, beta in specular_points(pose, segments):
+        a = abs((beta - pose[2] + np.pi) % (2 * np.pi) - np.pi)
+        amp = amplitude_at_1m / max(r, 0.1)
+        H += amp * np.exp(-0.5 * ((angles[:, None] - a) / sigma_rad) ** 2
+                          - 0.5 * ((ranges[None, :] - r) / sigma_m) ** 2)
+    return HeatMap(H=H, angles_rad=angles, ranges_m=ranges, speed_m_s=0.1,
+                   direction_observable=True)
