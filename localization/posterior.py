@@ -31,11 +31,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Generator, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import emcee
 import numpy as np
 from numpy.typing import NDArray
+
+from localization.sensor import SensorTables, pose_log_likelihood, prepare_measurement
+from mapping.heatmap import HeatMap
 
 FloatArray = NDArray[np.float64]
 LogLikelihood = Callable[[FloatArray], FloatArray]
@@ -148,10 +152,55 @@ def window_log_likelihood(
     return loglik
 
 
+def sensor_window_log_likelihood(
+    tables: SensorTables,
+    heat_maps: Sequence[HeatMap],
+    speed_m_s: FloatArray,
+    yaw_rate_rad_s: FloatArray,
+    block_s: float,
+) -> LogLikelihood:
+    """The window log-likelihood of issue 6's sensor model (tempered, floored, both mirrors).
+
+    Parameters
+    ----------
+    tables : SensorTables
+        ``localization.sensor.build_tables`` of the wall map G (its config sets the model,
+        beta and z_rand; the range-only model is used by itself for slow blocks).
+    heat_maps : sequence of HeatMap
+        The window's blocks, consecutive (paper eq. 1).
+    speed_m_s, yaw_rate_rad_s : ndarray, shape (K,)
+        The blocks' odometry.
+    block_s : float
+        Block duration (``SonarConfig.block_s``).
+    """
+    if len(heat_maps) < 1:
+        raise ValueError("heat_maps must hold >= 1 block, got 0")
+    measurements = [prepare_measurement(hm, tables.config) for hm in heat_maps]
+    funcs = [_bind_sensor(tables, m) for m in measurements]
+    return window_log_likelihood(funcs, window_offsets(speed_m_s, yaw_rate_rad_s, block_s))
+
+
+def _bind_sensor(tables: SensorTables, measurement: Any) -> LogLikelihood:
+    def f(poses: FloatArray) -> FloatArray:
+        return pose_log_likelihood(tables, measurement, poses)
+
+    return f
+
+
+def prior_from_tables(tables: SensorTables) -> PosePrior:
+    """Uniform prior over the map's free cells (``tables.free_mask``) and every heading."""
+    ny, nx = tables.shape
+    res = tables.resolution_m
+    x0, y0 = tables.origin_m
+    return PosePrior(x0 - 0.5 * res, x0 + (nx - 0.5) * res, y0 - 0.5 * res, y0 + (ny - 0.5) * res,
+                     support_mask=tables.free_mask, support_origin_m=(x0, y0),
+                     support_resolution_m=res)
+
+
 # ---- prior and posterior --------------------------------------------------------------
 @dataclass(frozen=True)
 class PosePrior:
-    """Uniform prior over a box in (x, y) and over heading.
+    """Uniform prior over a box in (x, y), optionally restricted to free cells, and heading.
 
     Attributes
     ----------
@@ -161,6 +210,10 @@ class PosePrior:
         None: every heading is allowed (wrapped). A value c: the sampled coordinate must lie in
         [c - pi, c + pi), one full turn, so an ensemble never drifts over many turns; the
         density on the circle is the same.
+    support_mask : ndarray of bool, shape (ny, nx), optional
+        Cells where the robot can be (e.g. the sensor tables' free-space mask); poses in other
+        cells get prior 0. Cell ``[iy, ix]`` is centred at ``support_origin_m + (ix, iy) *
+        support_resolution_m`` (the WallMap convention).
     """
 
     x_min_m: float
@@ -168,16 +221,24 @@ class PosePrior:
     y_min_m: float
     y_max_m: float
     heading_center_rad: float | None = None
+    support_mask: NDArray[np.bool_] | None = field(default=None, repr=False, compare=False)
+    support_origin_m: tuple[float, float] = (0.0, 0.0)
+    support_resolution_m: float = 1.0
 
     def __post_init__(self) -> None:
         for lo, hi, name in ((self.x_min_m, self.x_max_m, "x"), (self.y_min_m, self.y_max_m, "y")):
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 raise ValueError(f"PosePrior {name} range must be finite with max > min, "
                                  f"got [{lo}, {hi}]")
+        if self.support_mask is not None and (self.support_mask.ndim != 2
+                                              or not self.support_mask.any()):
+            raise ValueError("PosePrior.support_mask must be a 2-D bool array with a True cell")
+        if not self.support_resolution_m > 0:
+            raise ValueError(f"support_resolution_m must be > 0, got {self.support_resolution_m}")
 
     def with_heading_center(self, center_rad: float | None) -> PosePrior:
-        """The same box with another heading window."""
-        return PosePrior(self.x_min_m, self.x_max_m, self.y_min_m, self.y_max_m, center_rad)
+        """The same prior with another heading window."""
+        return replace(self, heading_center_rad=center_rad)
 
     def log_density(self, theta: FloatArray) -> FloatArray:
         """Log prior (n,): constant inside the support, -inf outside."""
@@ -188,8 +249,21 @@ class PosePrior:
         if self.heading_center_rad is not None:
             d = theta[:, 2] - self.heading_center_rad
             inside &= (d >= -math.pi) & (d < math.pi)
+        if self.support_mask is not None:
+            inside &= self._in_support(theta)
         area = (self.x_max_m - self.x_min_m) * (self.y_max_m - self.y_min_m) * TWO_PI
         return np.where(inside, -math.log(area), -np.inf)
+
+    def _in_support(self, theta: FloatArray) -> NDArray[np.bool_]:
+        assert self.support_mask is not None
+        ny, nx = self.support_mask.shape
+        c = np.rint((theta[:, :2] - np.asarray(self.support_origin_m))
+                    / self.support_resolution_m)
+        ix, iy = c[:, 0], c[:, 1]
+        ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        out = np.zeros(theta.shape[0], dtype=bool)
+        out[ok] = self.support_mask[iy[ok].astype(np.int64), ix[ok].astype(np.int64)]
+        return out
 
 
 def log_posterior(theta: FloatArray, loglik: LogLikelihood, prior: PosePrior) -> FloatArray:
@@ -333,6 +407,7 @@ def find_grid_modes(
     the most to the least probable and joined to their 26-neighbours (heading periodic when
     the grid is). Where two clusters meet, the lower one survives as a separate mode only when
     its peak stands at least ``persistence_nats`` above the saddle; otherwise it is merged.
+    Clusters that never touch within that region are separate modes whatever their depth.
     Modes below ``min_mode_mass`` are dropped and the rest renormalized.
     """
     if not 0 < mass_level <= 1:
