@@ -1,0 +1,400 @@
+"""Image-source geometry for 2-D scenes of wall segments (co-located source and receiver).
+
+An image source is an affine map ``x -> A x + b`` (a composition of mirror reflections in
+wall lines) applied to the robot position: the robot transmits at ``x`` and hears, among its
+echoes, the wave that appears to come from ``A x + b``. Because source and receiver are the
+same moving point, the image moves with the robot, mirrored through the walls in order.
+
+Two steps, both pure functions over arrays:
+
+1. :func:`candidate_images` enumerates the distinct maps up to an order, pruned by distance
+   (a valid path is never shorter than the distance from the robot to the image of any of
+   its prefixes, so a prefix farther than ``max_path_m`` from every robot position ends a
+   branch) and by visibility (a child through wall ``w`` of an image reached through wall
+   ``v`` is possible only if some ray from that image through segment ``v`` meets ``w``).
+2. :func:`trace_images` decides, for each candidate and robot position, whether the specular
+   path exists on the *finite* segments and is not blocked by another wall: it traces the
+   straight line from the receiver towards the image, reflects the target at the first wall
+   that line meets, and repeats until the target is the source itself (valid) or the line
+   runs out without a wall (no such path) or the source is reached too early (occluded).
+   Tracing finds the wall sequence of the physical path, so the order, the walls and the
+   product of the reflection coefficients come from the geometry, not from the enumeration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+#: Tolerance on the wall parameter u in [0, 1] (a path through a wall end or a corner counts).
+_U_TOL = 1e-9
+#: Tolerance (metres) for "the traced target is the source itself".
+_SOURCE_TOL_M = 1e-6
+
+
+@dataclass(frozen=True)
+class ImageSet:
+    """Distinct image-source maps ``x -> A x + b``.
+
+    Attributes
+    ----------
+    A : ndarray, shape (n, 2, 2)
+        Linear parts (orthogonal, determinant (-1)**order).
+    b : ndarray, shape (n, 2)
+        Offsets in metres.
+    order : ndarray of int, shape (n,)
+        Number of reflections of the first wall sequence that produced the map.
+    walls : tuple of tuple of int
+        That wall sequence (first wall hit first), for reference; the traced path decides.
+    max_order : int
+        Highest order enumerated.
+    """
+
+    A: FloatArray
+    b: FloatArray
+    order: IntArray
+    walls: tuple[tuple[int, ...], ...]
+    max_order: int
+
+    @property
+    def n(self) -> int:
+        """Number of images."""
+        return int(self.order.size)
+
+    def positions(self, xy: FloatArray) -> FloatArray:
+        """Image positions for robot positions ``xy`` (m, 2) -> (n, m, 2)."""
+        return np.einsum("nij,mj->nmi", self.A, np.asarray(xy, dtype=np.float64))[
+            :, :, :
+        ] + self.b[:, None, :]
+
+
+@dataclass(frozen=True)
+class TraceResult:
+    """Validity of image paths at robot positions (see :func:`trace_images`).
+
+    Attributes
+    ----------
+    valid : ndarray of bool, shape (n, m)
+        The specular path exists on the segments and no other wall blocks any leg.
+    order : ndarray of int, shape (n, m)
+        Number of reflections of the traced path (0 where invalid).
+    walls : ndarray of int, shape (n, m, max_order)
+        Wall ids in the order the sound hits them (-1 padding).
+    reflection : ndarray, shape (n, m)
+        Product of the reflection coefficients along the path (0 where invalid).
+    path_length_m : ndarray, shape (n, m)
+        Static path length |x - image| in metres.
+    """
+
+    valid: BoolArray
+    order: IntArray
+    walls: IntArray
+    reflection: FloatArray
+    path_length_m: FloatArray
+
+
+def mirror_maps(segments: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Mirror reflection ``x -> A x + b`` in the line through each wall segment.
+
+    Parameters
+    ----------
+    segments : ndarray, shape (W, 2, 2)
+        Wall end points ``[[x0, y0], [x1, y1]]`` in metres.
+
+    Returns
+    -------
+    A : ndarray, shape (W, 2, 2)
+        ``I - 2 n n^T`` with ``n`` the unit normal.
+    b : ndarray, shape (W, 2)
+        ``2 (p0 . n) n``.
+    """
+    seg = _check_segments(segments)
+    d = seg[:, 1] - seg[:, 0]
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1)[:, None]
+    A = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
+    b = 2.0 * np.sum(seg[:, 0] * n, axis=1)[:, None] * n
+    return A, b
+
+
+def _check_segments(segments: FloatArray) -> FloatArray:
+    seg = np.asarray(segments, dtype=np.float64)
+    if seg.ndim != 3 or seg.shape[1:] != (2, 2):
+        raise ValueError(f"segments must have shape (W, 2, 2), got {seg.shape}")
+    if not np.all(np.isfinite(seg)):
+        raise ValueError("segments must be finite")
+    if np.any(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1) <= 0):
+        raise ValueError("segments must have non-zero length")
+    return seg
+
+
+_IDENTITY_KEY = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+
+
+def _map_key(A: FloatArray, b: FloatArray) -> tuple[float, ...]:
+    return tuple(np.round(np.concatenate([A.ravel(), b]), 7).tolist())
+
+
+def candidate_images(
+    segments: FloatArray,
+    positions_m: FloatArray,
+    max_order: int,
+    max_path_m: float = np.inf,
+    max_images: int = 20_000,
+) -> ImageSet:
+    """Distinct image maps up to ``max_order`` that can matter for the given robot positions.
+
+    Parameters
+    ----------
+    segments : ndarray, shape (W, 2, 2)
+        Wall segments in metres.
+    positions_m : ndarray, shape (m, 2)
+        Robot positions the images will be used at (a sampling of the trajectory).
+    max_order : int
+        Highest number of reflections, >= 1.
+    max_path_m : float
+        Branches whose image is farther than this from every position are dropped.
+    max_images : int
+        Raise ``ValueError`` rather than enumerate more images than this.
+
+    Returns
+    -------
+    ImageSet
+        ``max_order`` is the highest order that still produced a candidate.
+    """
+    seg = _check_segments(segments)
+    if max_order < 1:
+        raise ValueError(f"max_order must be >= 1, got {max_order}")
+    if not max_path_m > 0:
+        raise ValueError(f"max_path_m must be > 0, got {max_path_m}")
+    pos = np.asarray(positions_m, dtype=np.float64).reshape(-1, 2)
+    WA, Wb = mirror_maps(seg)
+    seen: set[tuple[float, ...]] = set()
+    out_A: list[FloatArray] = []
+    out_b: list[FloatArray] = []
+    out_order: list[int] = []
+    out_walls: list[tuple[int, ...]] = []
+    frontier: list[tuple[FloatArray, FloatArray, tuple[int, ...]]] = [
+        (np.eye(2), np.zeros(2), ())
+    ]
+    reached = 0
+    node_keys: set[tuple[float, ...]] = set()
+    for order in range(1, max_order + 1):
+        new_frontier = []
+        for A, b, walls in frontier:
+            for w in range(seg.shape[0]):
+                if walls and walls[-1] == w:
+                    continue
+                A2 = WA[w] @ A
+                b2 = WA[w] @ b + Wb[w]
+                node = _map_key(A2, b2) + (float(w),)
+                if node in node_keys or node[:6] == _IDENTITY_KEY:
+                    continue  # seen, or the robot itself (the direct path is not an echo)
+                img = pos @ A2.T + b2
+                if np.min(np.linalg.norm(img - pos, axis=1)) > max_path_m:
+                    continue
+                if walls and not _visible_through(pos @ A.T + b, seg[walls[-1]], seg[w]):
+                    continue
+                node_keys.add(node)
+                new_frontier.append((A2, b2, walls + (w,)))
+                key = _map_key(A2, b2)
+                if key not in seen:
+                    seen.add(key)
+                    out_A.append(A2)
+                    out_b.append(b2)
+                    out_order.append(order)
+                    out_walls.append(walls + (w,))
+                    if len(out_A) > max_images:
+                        raise ValueError(
+                            f"more than max_images={max_images} image sources up to order "
+                            f"{order}; lower the order or max_path_m"
+                        )
+        if not new_frontier:
+            break
+        reached = order
+        frontier = new_frontier
+    return ImageSet(
+        A=np.array(out_A, dtype=np.float64).reshape(-1, 2, 2),
+        b=np.array(out_b, dtype=np.float64).reshape(-1, 2),
+        order=np.array(out_order, dtype=np.int64),
+        walls=tuple(out_walls),
+        max_order=reached,
+    )
+
+
+def _visible_through(sources: FloatArray, via: FloatArray, target: FloatArray) -> bool:
+    """True if for some source a ray through segment ``via`` meets segment ``target`` beyond it.
+
+    The region reached is the wedge from the source spanned by ``via``, beyond ``via``: three
+    half-planes. Clip ``target`` against them (Cyrus-Beck) for every source at once.
+    """
+    s = sources
+    a, bb = via[0], via[1]
+    c, d = target[0], target[1]
+
+    def cross(u: FloatArray, v: FloatArray) -> FloatArray:
+        return np.asarray(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+
+    orient = cross(a - s, bb - s)  # (m,)
+    sign = np.where(orient >= 0, 1.0, -1.0)
+    # half-plane values f(q) >= 0 at the target end points c and d
+    def halfplanes(q: FloatArray) -> FloatArray:
+        # q on bb's side of line s-a, on a's side of line s-bb, and beyond line a-bb
+        return np.stack(
+            [
+                sign * cross(a - s, q - s),
+                -sign * cross(bb - s, q - s),
+                -sign * cross(bb - a, q - a) * np.ones_like(sign),
+            ]
+        )
+
+    fc = halfplanes(c)
+    fd = halfplanes(d)
+    scale = np.linalg.norm(d - c) * np.linalg.norm(bb - a) + 1e-300
+    tol = 1e-9 * scale
+    lo = np.zeros(s.shape[0])
+    hi = np.ones(s.shape[0])
+    for k in range(3):
+        f0, f1 = fc[k], fd[k]
+        df = f1 - f0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (-tol - f0) / df
+        inc = df > 0
+        dec = df < 0
+        lo = np.where(inc, np.maximum(lo, u), lo)
+        hi = np.where(dec, np.minimum(hi, u), hi)
+        flat_out = (df == 0) & (f0 < -tol)
+        hi = np.where(flat_out, -1.0, hi)
+    degenerate = np.abs(orient) <= 1e-12 * scale
+    return bool(np.any((lo <= hi) & ~degenerate))
+
+
+def trace_images(
+    images: ImageSet,
+    segments: FloatArray,
+    reflection: FloatArray,
+    positions_m: FloatArray,
+) -> TraceResult:
+    """Validity and occlusion of every image path at every robot position.
+
+    Parameters
+    ----------
+    images : ImageSet
+    segments : ndarray, shape (W, 2, 2)
+    reflection : ndarray, shape (W,)
+        Reflection coefficient of each wall.
+    positions_m : ndarray, shape (m, 2)
+        Robot (source = receiver) positions.
+
+    Returns
+    -------
+    TraceResult
+        Arrays of shape (n_images, m).
+
+    Notes
+    -----
+    From the receiver, the line towards the image must meet a wall first; the target is then
+    reflected in that wall and the trace continues from the hit point, excluding the wall
+    just left. A path is valid when, after its reflections, the target is the source and
+    the last leg meets no wall; a leg that reaches the source while reflections remain, or
+    a leg towards a virtual target that meets no wall, means no specular path.
+    """
+    seg = _check_segments(segments)
+    R = np.asarray(reflection, dtype=np.float64)
+    if R.shape != (seg.shape[0],):
+        raise ValueError(f"reflection must have shape ({seg.shape[0]},), got {R.shape}")
+    pos = np.asarray(positions_m, dtype=np.float64).reshape(-1, 2)
+    n, m = images.n, pos.shape[0]
+    max_order = max(int(images.max_order), 1)
+    WA, Wb = mirror_maps(seg)
+    img = images.positions(pos)  # (n, m, 2)
+    src = np.broadcast_to(pos[None], (n, m, 2)).reshape(-1, 2)
+    P = src.copy()
+    T = img.reshape(-1, 2).copy()
+    N = P.shape[0]
+    last = np.full(N, -1, dtype=np.int64)
+    active = np.ones(N, dtype=bool)
+    valid = np.zeros(N, dtype=bool)
+    order = np.zeros(N, dtype=np.int64)
+    walls = np.full((N, max_order), -1, dtype=np.int64)
+    rprod = np.ones(N)
+    c0, dseg = seg[:, 0], seg[:, 1] - seg[:, 0]
+    for _step in range(max_order + 1):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        p, t = P[idx], T[idx]
+        at_source = np.linalg.norm(t - src[idx], axis=1) < _SOURCE_TOL_M
+        s, w = _first_hit(p, t, c0, dseg, last[idx], ~at_source)
+        hit = w >= 0
+        done_ok = at_source & ~hit
+        valid[idx[done_ok]] = True
+        # finished (valid, occluded, or no wall towards a virtual target)
+        stop = done_ok | (at_source & hit) | (~at_source & ~hit)
+        active[idx[stop]] = False
+        go = idx[~stop]
+        if go.size == 0:
+            break
+        wg = w[~stop]
+        k = order[go]
+        too_many = k >= max_order
+        active[go[too_many]] = False
+        go, wg, k = go[~too_many], wg[~too_many], k[~too_many]
+        sg = s[~stop][~too_many]
+        P[go] = P[go] + sg[:, None] * (T[go] - P[go])
+        T[go] = np.einsum("nij,nj->ni", WA[wg], T[go]) + Wb[wg]
+        walls[go, k] = wg
+        order[go] = k + 1
+        rprod[go] *= R[wg]
+        last[go] = wg
+    shape = (n, m)
+    length = np.linalg.norm(img - pos[None], axis=2)
+    valid = valid.reshape(shape) & (length > _SOURCE_TOL_M)
+    return TraceResult(
+        valid=valid,
+        order=np.where(valid, order.reshape(shape), 0),
+        walls=np.where(valid[..., None], walls.reshape(n, m, max_order), -1),
+        reflection=np.where(valid, rprod.reshape(shape), 0.0),
+        path_length_m=length,
+    )
+
+
+def _first_hit(
+    p: FloatArray,
+    t: FloatArray,
+    c0: FloatArray,
+    dseg: FloatArray,
+    exclude: IntArray,
+    allow_zero: BoolArray,
+) -> tuple[FloatArray, IntArray]:
+    """Nearest wall met by each leg ``p -> t`` (leg parameter s in (0, 1)), excluding one wall.
+
+    A wall through the start point itself (s ~ 0: the leg starts in a corner) counts only
+    where ``allow_zero``: it is the second bounce of a corner path, but it never blocks the
+    last leg back to the source.
+
+    Returns the leg parameter and the wall id (-1 and inf when no wall is met).
+    """
+    r = t - p  # (N, 2)
+    denom = r[:, None, 0] * dseg[None, :, 1] - r[:, None, 1] * dseg[None, :, 0]  # (N, W)
+    q = c0[None] - p[:, None]  # (N, W, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (q[..., 0] * dseg[None, :, 1] - q[..., 1] * dseg[None, :, 0]) / denom
+        u = (q[..., 0] * r[:, None, 1] - q[..., 1] * r[:, None, 0]) / denom
+    ok = (
+        (np.abs(denom) > 1e-15)
+        & ((s > 1e-9) | (allow_zero[:, None] & (s > -1e-9)))
+        & (s < 1.0 - 1e-12)
+        & (u >= -_U_TOL)
+        & (u <= 1.0 + _U_TOL)
+    )
+    ok &= np.arange(dseg.shape[0])[None, :] != exclude[:, None]
+    s = np.where(ok, s, np.inf)
+    w = np.argmin(s, axis=1)
+    best = s[np.arange(s.shape[0]), w]
+    return best, np.where(np.isfinite(best), w, -1).astype(np.int64)
