@@ -1,0 +1,222 @@
+"""Private numba kernels of the staggered-grid FDTD (paper eqs. 9-11); imported only by
+:mod:`mapping.simulate.fdtd`, which validates every input first.
+
+Layout (first index x / row ``i``, second index y / column ``j``; ``f`` = field):
+
+- ``p[f, i, j]``   pressure at cell centre (i, j), stored with a constant ``offset`` added
+  (keeps tiny values out of the subnormal range, see ``fdtd.py``);
+- ``qx[f, i, j]``  x velocity at (i - 1/2, j), shape (nf, nx + 1, ny); rows 0 and nx are the
+  rigid outer boundary and are never written;
+- ``qy[f, i, j]``  y velocity at (i, j - 1/2), shape (nf, nx, ny + 1); columns 0 and ny rigid;
+- ``psx[f, i, j]`` x part of the split pressure inside the PML (only border cells touched).
+
+Field 0 carries the walls (rigid velocity nodes listed per row in CSR form, impedance cells
+with their implicit coefficient ``beta``); field 1, if present, is the free field.
+
+One time step is a single fused sweep over rows: row ``i`` updates ``qx`` node ``i + 1`` and
+the ``qy`` nodes of row ``i`` (from the old pressure), then the pressure of row ``i`` (from
+the new velocities). Rows are split into contiguous chunks, one ``prange`` iteration each;
+the first row of every chunk needs the last velocity row of the previous chunk, so its
+pressure is updated in a short second parallel pass. The arithmetic per element is the same
+as the plain numpy twin in ``fdtd.py`` (tested).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from mapping._numba_config import NUMBA_FLAGS, PARALLEL
+
+
+@njit(**NUMBA_FLAGS)
+def _velocity_row(p, qx, qy, f, i, aqx, bqx, aqy, bqy, npml, walled,
+                  wx_ptr, wx_col, wy_ptr, wy_col, flush):  # pragma: no cover - numba
+    nx = p.shape[1]
+    ny = p.shape[2]
+    if i + 1 < nx:
+        a = aqx[i + 1]
+        b = bqx[i + 1]
+        row = qx[f, i + 1]
+        p0 = p[f, i]
+        p1 = p[f, i + 1]
+        if a == 1.0:
+            for j in range(ny):
+                row[j] = row[j] - b * (p1[j] - p0[j])
+        else:
+            for j in range(ny):
+                v = a * row[j] - b * (p1[j] - p0[j])
+                if abs(v) < flush:
+                    v = 0.0
+                row[j] = v
+        if walled:
+            for k in range(wx_ptr[i + 1], wx_ptr[i + 2]):
+                row[wx_col[k]] = 0.0
+    row = qy[f, i]
+    pr = p[f, i]
+    lo = min(npml, ny)
+    hi = max(ny - npml + 1, lo)
+    for j in range(1, lo):
+        v = aqy[j] * row[j] - bqy[j] * (pr[j] - pr[j - 1])
+        if abs(v) < flush:
+            v = 0.0
+        row[j] = v
+    b = bqy[lo] if lo < ny else bqy[0]
+    for j in range(max(lo, 1), min(hi, ny)):
+        row[j] = row[j] - b * (pr[j] - pr[j - 1])
+    for j in range(max(hi, 1), ny):
+        v = aqy[j] * row[j] - bqy[j] * (pr[j] - pr[j - 1])
+        if abs(v) < flush:
+            v = 0.0
+        row[j] = v
+    if walled:
+        for k in range(wy_ptr[i], wy_ptr[i + 1]):
+            row[wy_col[k]] = 0.0
+
+
+@njit(**NUMBA_FLAGS)
+def _split_cell(pr, sx, qx0, qx1, qyr, j, ax, bx, apy, bpy, offset, flush):  # pragma: no cover
+    px = ax * sx[j] - bx * (qx1[j] - qx0[j])
+    py = apy[j] * (pr[j] - offset - sx[j]) - bpy[j] * (qyr[j + 1] - qyr[j])
+    if abs(px) < flush:
+        px = 0.0
+    if abs(py) < flush:
+        py = 0.0
+    sx[j] = px
+    pr[j] = offset + px + py
+
+
+@njit(**NUMBA_FLAGS)
+def _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml, walled,
+                  imp_ptr, imp_col, imp_beta, imp_buf, offset, flush):  # pragma: no cover
+    nx = p.shape[1]
+    ny = p.shape[2]
+    pr = p[f, i]
+    sx = psx[f, i]
+    qx0 = qx[f, i]
+    qx1 = qx[f, i + 1]
+    qyr = qy[f, i]
+    if walled:
+        for k in range(imp_ptr[i], imp_ptr[i + 1]):
+            imp_buf[k] = pr[imp_col[k]]
+    ax = apx[i]
+    bx = bpx[i]
+    if i < npml or i >= nx - npml:
+        for j in range(ny):
+            _split_cell(pr, sx, qx0, qx1, qyr, j, ax, bx, apy, bpy, offset, flush)
+    else:
+        lo = min(npml, ny)
+        hi = max(ny - npml, lo)
+        for j in range(lo):
+            _split_cell(pr, sx, qx0, qx1, qyr, j, ax, bx, apy, bpy, offset, flush)
+        for j in range(lo, hi):
+            pr[j] = pr[j] - kp * ((qx1[j] - qx0[j]) + (qyr[j + 1] - qyr[j]))
+        for j in range(hi, ny):
+            _split_cell(pr, sx, qx0, qx1, qyr, j, ax, bx, apy, bpy, offset, flush)
+    if walled:
+        for k in range(imp_ptr[i], imp_ptr[i + 1]):
+            c = imp_col[k]
+            beta = imp_beta[k]
+            pr[c] = offset + ((pr[c] - offset) - beta * (imp_buf[k] - offset)) / (1.0 + beta)
+
+
+@njit(**NUMBA_FLAGS)
+def _inject_and_receive(p, n, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out,
+                        offset):  # pragma: no cover - numba
+    nf = p.shape[0]
+    for f in range(nf):
+        for k in range(4):
+            p[f, src_i[n, k], src_j[n, k]] += src_w[n, k] * src_g[n]
+        acc = 0.0
+        for k in range(4):
+            acc += rx_w[n, k] * (p[f, rx_i[n, k], rx_j[n, k]] - offset)
+        out[n, f] = acc
+
+
+@njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
+               wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf,
+               offset, flush, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w,
+               out, n_chunks):  # pragma: no cover - numba
+    """Advance ``src_g.size`` steps: the fused sweep (two parallel passes over row chunks),
+    then the source and receiver of that step."""
+    nf = p.shape[0]
+    nx = p.shape[1]
+    for n in range(src_g.shape[0]):
+        for c in prange(n_chunks):
+            s = (c * nx) // n_chunks
+            e = ((c + 1) * nx) // n_chunks
+            for i in range(s, e):
+                for f in range(nf):
+                    walled = f == 0
+                    _velocity_row(p, qx, qy, f, i, aqx, bqx, aqy, bqy, npml, walled,
+                                  wx_ptr, wx_col, wy_ptr, wy_col, flush)
+                    if i > s:
+                        _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml,
+                                      walled, imp_ptr, imp_col, imp_beta, imp_buf, offset,
+                                      flush)
+        for c in prange(n_chunks):
+            s = (c * nx) // n_chunks
+            e = ((c + 1) * nx) // n_chunks
+            if e > s:
+                for f in range(nf):
+                    _pressure_row(p, qx, qy, psx, f, s, apx, bpx, apy, bpy, kp, npml, f == 0,
+                                  imp_ptr, imp_col, imp_beta, imp_buf, offset, flush)
+        _inject_and_receive(p, n, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out, offset)
+
+
+# ---- the plain numpy twin (tests and benchmark baseline) -----------------------------------
+def _split_numpy(p, sx, dqx, dqy, apx, bpx, apy, bpy, offset, flush):  # type: ignore[no-untyped-def]
+    px = apx[:, None] * sx - bpx[:, None] * dqx
+    py = apy[None, :] * (p - offset - sx) - bpy[None, :] * dqy
+    px = np.where(np.abs(px) < flush, px.dtype.type(0), px)
+    py = np.where(np.abs(py) < flush, py.dtype.type(0), py)
+    return px, offset + px + py
+
+
+def _step_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
+                wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush):  # type: ignore[no-untyped-def]
+    """One step of eqs. 9-11 as whole-array numpy operations (velocities, then pressure)."""
+    nf, nx, ny = p.shape
+    zero = p.dtype.type(0)
+    pml_cell = np.zeros((nx, ny), dtype=bool)
+    pml_cell[:npml, :] = True
+    pml_cell[nx - npml:, :] = True
+    pml_cell[:, :npml] = True
+    pml_cell[:, ny - npml:] = True
+    for f in range(nf):
+        vx = aqx[1:nx, None] * qx[f, 1:nx] - bqx[1:nx, None] * (p[f, 1:] - p[f, :-1])
+        damped_x = (aqx[1:nx] != 1)[:, None]
+        vx = np.where(damped_x & (np.abs(vx) < flush), zero, vx)
+        qx[f, 1:nx] = vx
+        vy = aqy[None, 1:ny] * qy[f, :, 1:ny] - bqy[None, 1:ny] * (p[f, :, 1:] - p[f, :, :-1])
+        damped_y = (aqy[1:ny] != 1)[None, :]
+        vy = np.where(damped_y & (np.abs(vy) < flush), zero, vy)
+        qy[f, :, 1:ny] = vy
+        if f == 0:
+            qx[0][wx_mask] = zero
+            qy[0][wy_mask] = zero
+        dqx = qx[f, 1:] - qx[f, :-1]
+        dqy = qy[f, :, 1:] - qy[f, :, :-1]
+        plain = p[f] - kp * (dqx + dqy)
+        px, split = _split_numpy(p[f], psx[f], dqx, dqy, apx, bpx, apy, bpy, offset, flush)
+        new = np.where(pml_cell, split, plain)
+        psx[f] = np.where(pml_cell, px, psx[f])
+        if f == 0:
+            beta = imp_beta_grid
+            corrected = offset + ((new - offset) - beta * (p[f] - offset)) / (1 + beta)
+            new = np.where(imp_mask, corrected, new)
+        p[f] = new
+
+
+def _run_steps_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
+                     wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush,
+                     src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out):  # type: ignore[no-untyped-def]
+    """Numpy twin of :func:`_run_steps` (walls and impedance cells given as dense masks)."""
+    for n in range(src_g.shape[0]):
+        _step_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
+                    wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush)
+        for f in range(p.shape[0]):
+            for k in range(4):
+                p[f, src_i[n, k], src_j[n, k]] += src_w[n, k] * src_g[n]
+            out[n, f] = np.sum(rx_w[n] * (p[f, rx_i[n], rx_j[n]] - offset))
