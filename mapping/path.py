@@ -265,7 +265,7 @@ def polyline_path(points_m: ArrayLike, speed_m_s: float = PAPER_SPEED_M_S,
         # largest radius that fits every segment
         tan_half = np.tan(np.abs(turns) / 2)
         per_r = np.concatenate([[0.0], tan_half]) + np.concatenate([tan_half, [0.0]])
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):
             r_max = float(np.min(np.where(per_r > 0, seg_len / per_r, np.inf)))
         i = int(np.argmax(need > seg_len * (1 + 1e-12)))
         raise ValueError(

@@ -249,7 +249,7 @@ def _polylines(draw: st.DrawFn) -> tuple[np.ndarray, float]:
     pts_a = np.array(pts)
     t = np.tan(np.abs(np.array(turns)) / 2) if turns else np.zeros(0)
     per_r = np.concatenate([[0.0], t]) + np.concatenate([t, [0.0]])
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):
         r_max = float(np.min(np.where(per_r > 0, np.array(lengths) / per_r, 10.0)))
     r = draw(st.floats(0.01, 0.99)) * min(r_max, 10.0)
     return pts_a, r
