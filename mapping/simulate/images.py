@@ -318,6 +318,7 @@ def trace_images(
     T = img.reshape(-1, 2).copy()
     N = P.shape[0]
     last = np.full(N, -1, dtype=np.int64)
+    last_zero = np.zeros(N, dtype=bool)
     active = np.ones(N, dtype=bool)
     valid = np.zeros(N, dtype=bool)
     order = np.zeros(N, dtype=np.int64)
@@ -330,7 +331,8 @@ def trace_images(
             break
         p, t = P[idx], T[idx]
         at_source = np.linalg.norm(t - src[idx], axis=1) < _SOURCE_TOL_M
-        s, w = _first_hit(p, t, c0, dseg, last[idx], ~at_source)
+        # a corner is two bounces at one point: at most one zero-length leg in a row
+        s, w = _first_hit(p, t, c0, dseg, last[idx], ~at_source & ~last_zero[idx])
         hit = w >= 0
         done_ok = at_source & ~hit
         valid[idx[done_ok]] = True
@@ -352,6 +354,7 @@ def trace_images(
         order[go] = k + 1
         rprod[go] *= R[wg]
         last[go] = wg
+        last_zero[go] = sg <= 1e-9
     shape = (n, m)
     length = np.linalg.norm(img - pos[None], axis=2)
     valid = valid.reshape(shape) & (length > _SOURCE_TOL_M)
