@@ -1,0 +1,197 @@
+"""Summaries of a weighted pose set: circular statistics, covariance, modes.
+
+Headings are angles: their mean is the circular mean ``atan2(sum w sin h, sum w cos h)``
+and deviations are wrapped to (-pi, pi] before any second moment is taken. Modes are found
+by clustering: particles are binned on a coarse (x, y, heading) grid, bins holding
+non-negligible weight are joined into connected components (the heading axis wraps
+around), and each component is summarized by its weight, mean and covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from localization.motion import wrap_angle
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """Mode clustering and convergence test.
+
+    Parameters
+    ----------
+    cell_m, heading_bins : float, int
+        Bin size of the clustering grid (position, number of heading bins over 2 pi).
+    min_bin_weight : float
+        Bins lighter than this belong to no mode.
+    max_modes : int
+        Modes reported.
+    converged_weight, converged_std_m, converged_std_rad : float
+        ``converged`` when the best mode holds at least this weight and its position and
+        heading standard deviations are below these.
+    """
+
+    cell_m: float = 0.25
+    heading_bins: int = 12
+    min_bin_weight: float = 1e-3
+    max_modes: int = 5
+    converged_weight: float = 0.9
+    converged_std_m: float = 0.15
+    converged_std_rad: float = math.radians(15.0)
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One cluster of the pose set: its total weight, mean pose (3,) and covariance (3, 3)."""
+
+    weight: float
+    mean: FloatArray
+    cov: FloatArray
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """The filter's answer after one block.
+
+    Attributes
+    ----------
+    pose : ndarray (3,)
+        Mean (x_m, y_m, heading_rad) of the heaviest mode; heading in (-pi, pi].
+    cov : ndarray (3, 3)
+        Covariance of that mode (m^2, m rad, rad^2).
+    mean_all, cov_all : ndarray (3,), (3, 3)
+        Mean and covariance of the whole set.
+    modes : tuple of Mode
+        Heaviest first.
+    ess : float
+        Effective sample size after the update (before any resampling).
+    converged : bool
+        All weight in one compact mode (see :class:`ClusterConfig`).
+    direction_observable : bool
+        Whether this update used direction information.
+    updated : bool
+        Whether a measurement was applied (False: prediction only).
+    model : str
+        Sensor model used ("correlation", "range" or "none").
+    """
+
+    pose: FloatArray
+    cov: FloatArray
+    mean_all: FloatArray
+    cov_all: FloatArray
+    modes: tuple[Mode, ...]
+    ess: float
+    converged: bool
+    direction_observable: bool
+    updated: bool
+    model: str
+
+
+def circular_mean(angles: FloatArray, weights: FloatArray | None = None) -> float:
+    """Weighted circular mean in (-pi, pi]."""
+    w = np.ones_like(angles) if weights is None else weights
+    return float(wrap_angle(math.atan2(float(np.sum(w * np.sin(angles))),
+                                       float(np.sum(w * np.cos(angles))))))
+
+
+def circular_std(angles: FloatArray, weights: FloatArray | None = None) -> float:
+    """Circular standard deviation ``sqrt(-2 ln R)`` (rad) of weighted angles."""
+    w = np.ones_like(angles) if weights is None else weights
+    w = w / w.sum()
+    r = math.hypot(float(np.sum(w * np.sin(angles))), float(np.sum(w * np.cos(angles))))
+    return math.sqrt(-2.0 * math.log(max(r, 1e-300)))
+
+
+def weighted_mean_cov(poses: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Mean (circular in heading) and covariance (heading deviations wrapped) of poses."""
+    w = weights / weights.sum()
+    mean = np.array([np.sum(w * poses[:, 0]), np.sum(w * poses[:, 1]),
+                     circular_mean(poses[:, 2], w)])
+    d = poses - mean
+    d[:, 2] = wrap_angle(d[:, 2])
+    cov = (d * w[:, None]).T @ d
+    return mean, 0.5 * (cov + cov.T)
+
+
+def pose_error(estimate: FloatArray, truth: FloatArray) -> tuple[float, float]:
+    """Position error (m) and absolute wrapped heading error (rad) of one pose."""
+    return (float(math.hypot(estimate[0] - truth[0], estimate[1] - truth[1])),
+            float(abs(wrap_angle(estimate[2] - truth[2]))))
+
+
+def nees(estimate: FloatArray, cov: FloatArray, truth: FloatArray) -> float:
+    """Normalized estimation error squared ``e^T cov^-1 e`` (3 degrees of freedom)."""
+    e = np.asarray(truth, dtype=np.float64) - estimate
+    e[2] = float(wrap_angle(e[2]))
+    return float(e @ np.linalg.solve(cov + 1e-12 * np.eye(3), e))
+
+
+def find_modes(poses: FloatArray, weights: FloatArray, config: ClusterConfig) -> list[Mode]:
+    """Cluster a weighted pose set into modes, heaviest first (see the module docstring)."""
+    w = weights / weights.sum()
+    lo = poses[:, :2].min(axis=0)
+    ij = np.floor((poses[:, :2] - lo) / config.cell_m).astype(np.int64)
+    hb = np.floor((wrap_angle(poses[:, 2]) + np.pi) / (2 * np.pi) * config.heading_bins)
+    hb = np.clip(hb.astype(np.int64), 0, config.heading_bins - 1)
+    shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1, config.heading_bins)
+    flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], hb), shape)
+    bin_w = np.bincount(flat, weights=w, minlength=int(np.prod(shape))).reshape(shape)
+    labels, n = ndimage.label(bin_w >= config.min_bin_weight, structure=np.ones((3, 3, 3)))
+    labels = _merge_wrap(labels, n)
+    particle_label = labels.ravel()[flat]
+    modes = []
+    for lab in np.unique(particle_label[particle_label > 0]):
+        sel = particle_label == lab
+        mean, cov = weighted_mean_cov(poses[sel], w[sel])
+        modes.append(Mode(weight=float(w[sel].sum()), mean=mean, cov=cov))
+    modes.sort(key=lambda m: -m.weight)
+    return modes[: config.max_modes]
+
+
+def _merge_wrap(labels: NDArray[np.int32], n: int) -> NDArray[np.int64]:
+    """Join components that touch across the heading wrap (bin 0 next to the last bin)."""
+    parent = np.arange(n + 1)
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            a = int(parent[a])
+        return a
+
+    first, last = labels[:, :, 0], labels[:, :, -1]
+    nx, ny = first.shape
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            a = first[max(dx, 0):nx + min(dx, 0), max(dy, 0):ny + min(dy, 0)]
+            b = last[max(-dx, 0):nx + min(-dx, 0), max(-dy, 0):ny + min(-dy, 0)]
+            for p, q in zip(a[(a > 0) & (b > 0)], b[(a > 0) & (b > 0)], strict=True):
+                rp, rq = root(int(p)), root(int(q))
+                if rp != rq:
+                    parent[max(rp, rq)] = min(rp, rq)
+    roots = np.array([root(i) for i in range(n + 1)])
+    return roots[labels]
+
+
+def summarize(
+    poses: FloatArray, log_w: FloatArray, config: ClusterConfig, *, ess: float,
+    direction_observable: bool, updated: bool, model: str,
+) -> PoseEstimate:
+    """Build the :class:`PoseEstimate` of a particle set with normalized log-weights."""
+    w = np.exp(log_w - log_w.max())
+    mean_all, cov_all = weighted_mean_cov(poses, w)
+    modes = find_modes(poses, w, config)
+    best = modes[0] if modes else Mode(1.0, mean_all, cov_all)
+    compact = (math.sqrt(max(best.cov[0, 0] + best.cov[1, 1], 0.0)) <= config.converged_std_m
+               and math.sqrt(max(best.cov[2, 2], 0.0)) <= config.converged_std_rad)
+    return PoseEstimate(
+        pose=best.mean, cov=best.cov, mean_all=mean_all, cov_all=cov_all,
+        modes=tuple(modes), ess=float(ess),
+        converged=bool(best.weight >= config.converged_weight and compact),
+        direction_observable=direction_observable, updated=updated, model=model,
+    )

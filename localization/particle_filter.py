@@ -1,0 +1,377 @@
+"""Monte Carlo localization on the acoustic wall map (paper Fig. 1(b)).
+
+Pure functions do the work (:func:`init_tracked`, :func:`init_global`, :func:`predict`,
+:func:`weigh`, :func:`resample`, :func:`inject`); :class:`ParticleFilter` is a thin stateful
+object that holds the arrays and calls them in order, one sonar block per :meth:`step`:
+
+1. validate the block and odometry (nothing is mutated before this passes);
+2. predict: sample the odometry motion model (:mod:`localization.motion`);
+3. weigh: add the sensor log-likelihood (:mod:`localization.sensor`), normalize by
+   log-sum-exp, and update the augmented-MCL averages ``w_slow``/``w_fast``
+   (Thrun et al., *Probabilistic Robotics*, Table 8.3);
+4. summarize the weighted set (:mod:`localization.estimate`);
+5. resample systematically when ESS < ``resample_ess_fraction * n``, replacing a share
+   ``max(0, 1 - w_fast / w_slow)`` of particles by fresh poses drawn over the free space
+   (candidates importance-weighted by the current block, i.e. sensor resetting) so a
+   kidnapped robot is found again; optionally adapting the count (KLD sampling, Fox 2003).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import logsumexp
+from scipy.stats import norm
+
+from localization import motion, resampling
+from localization.estimate import ClusterConfig, PoseEstimate, summarize
+from localization.motion import MotionNoise, wrap_angle
+from localization.sensor import (
+    Measurement,
+    SensorTables,
+    log_likelihood,
+    pose_log_likelihood,
+    prepare_measurement,
+    score_poses,
+)
+from mapping.heatmap import HeatMap
+
+FloatArray = NDArray[np.float64]
+STATE_FORMAT = "omnisonar-pf-state-1"
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Particle filter parameters.
+
+    Parameters
+    ----------
+    n_particles : int
+        Particle count (the initial count when ``kld`` is on).
+    resample_ess_fraction : float
+        Resample when ESS falls below this fraction of the count.
+    augmented : bool
+        Augmented-MCL recovery (random injection) on.
+    alpha_slow, alpha_fast : float
+        Smoothing rates of the long- and short-term likelihood averages (per block).
+    max_inject_fraction : float
+        Cap on the share of particles replaced in one resampling.
+    inject_candidates : int
+        Candidates drawn per injected particle; the injected ones are picked among them by
+        the current block's likelihood.
+    kld : bool
+        KLD-adaptive particle count at each resampling.
+    kld_epsilon, kld_delta : float
+        KLD bound and confidence (Fox 2003).
+    kld_bin_m, kld_bin_rad : float
+        KLD histogram bin size.
+    n_min, n_max : int
+        KLD count limits.
+    motion : MotionNoise
+    cluster : ClusterConfig
+    """
+
+    n_particles: int = 2000
+    resample_ess_fraction: float = 0.5
+    augmented: bool = True
+    alpha_slow: float = 0.05
+    alpha_fast: float = 0.5
+    max_inject_fraction: float = 0.25
+    inject_candidates: int = 8
+    kld: bool = False
+    kld_epsilon: float = 0.05
+    kld_delta: float = 0.01
+    kld_bin_m: float = 0.2
+    kld_bin_rad: float = math.radians(10.0)
+    n_min: int = 200
+    n_max: int = 20000
+    motion: MotionNoise = field(default_factory=MotionNoise)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n_particles <= 10_000_000:
+            raise ValueError(f"n_particles must be in [1, 1e7], got {self.n_particles}")
+        if not 0 < self.resample_ess_fraction <= 1:
+            raise ValueError(
+                f"resample_ess_fraction must be in (0, 1], got {self.resample_ess_fraction}")
+        if not (0 < self.alpha_slow < self.alpha_fast <= 1):
+            raise ValueError("need 0 < alpha_slow < alpha_fast <= 1, got "
+                             f"{self.alpha_slow}, {self.alpha_fast}")
+        if not 0 <= self.max_inject_fraction <= 1:
+            raise ValueError(
+                f"max_inject_fraction must be in [0, 1], got {self.max_inject_fraction}")
+        if self.inject_candidates < 1:
+            raise ValueError(f"inject_candidates must be >= 1, got {self.inject_candidates}")
+        if not 1 <= self.n_min <= self.n_max:
+            raise ValueError(f"need 1 <= n_min <= n_max, got {self.n_min}, {self.n_max}")
+
+    def to_json(self) -> str:
+        """JSON of every field (nested dataclasses as objects)."""
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> FilterConfig:
+        """Inverse of :meth:`to_json`."""
+        d = json.loads(text)
+        d["motion"] = MotionNoise(**d["motion"])
+        d["cluster"] = ClusterConfig(**d["cluster"])
+        return cls(**d)
+
+
+# ---- pure functions ----------------------------------------------------------------------
+def init_tracked(pose: FloatArray, cov: FloatArray, n: int,
+                 rng: np.random.Generator) -> FloatArray:
+    """``n`` poses drawn from a Gaussian around ``pose`` (3,) with covariance ``cov`` (3, 3)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose must be 3 finite numbers (x_m, y_m, heading_rad), got {pose}")
+    if cov.shape != (3, 3) or not np.all(np.isfinite(cov)) or not np.allclose(cov, cov.T):
+        raise ValueError("cov must be a finite symmetric 3x3 matrix")
+    if np.linalg.eigvalsh(cov).min() < -1e-12:
+        raise ValueError("cov must be positive semi-definite")
+    out = rng.multivariate_normal(pose, cov, size=n, method="eigh")
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+def init_global(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:
+    """``n`` poses uniform over the free cells of the map, headings uniform."""
+    iy, ix = np.nonzero(tables.free_mask)
+    pick = rng.integers(0, iy.size, size=n)
+    u = rng.random((n, 3))
+    out = np.empty((n, 3))
+    out[:, 0] = tables.origin_m[0] + (ix[pick] + u[:, 0] - 0.5) * tables.resolution_m
+    out[:, 1] = tables.origin_m[1] + (iy[pick] + u[:, 1] - 0.5) * tables.resolution_m
+    out[:, 2] = wrap_angle(-np.pi + 2 * np.pi * u[:, 2])
+    return out
+
+
+def predict(poses: FloatArray, speed_m_s: float, yaw_rate_rad_s: float, dt_s: float,
+            noise: MotionNoise, rng: np.random.Generator) -> FloatArray:
+    """Prediction step: :func:`localization.motion.predict`."""
+    return motion.predict(poses, speed_m_s, yaw_rate_rad_s, dt_s, noise, rng)
+
+
+def weigh(log_w: FloatArray, poses: FloatArray, tables: SensorTables,
+          measurement: Measurement) -> tuple[FloatArray, float]:
+    """Measurement update.
+
+    The likelihood is floored relative to the best particle (:func:`log_likelihood` with
+    ``rho_ref`` = the set's best correlation), so one block changes weight ratios by at most
+    ``1 / z_rand``. Returns the normalized log-weights and ``log w_avg``, the log of the
+    absolute likelihood ``exp(beta (rho - 1))`` averaged over the prior weights (the
+    augmented-MCL statistic).
+    """
+    rho = score_poses(tables, measurement, poses)
+    finite = np.isfinite(rho)
+    ref = float(np.max(rho[finite])) if finite.any() else 1.0
+    ll = log_likelihood(rho, tables.config, ref)
+    new, _ = resampling.normalize_log_weights(log_w + ll)
+    absolute = np.where(finite, tables.config.beta * (np.nan_to_num(rho) - 1.0), -np.inf)
+    prior = log_w - float(logsumexp(log_w))
+    return new, float(logsumexp(prior + absolute)) if finite.any() else -np.inf
+
+
+def resample(poses: FloatArray, log_w: FloatArray, rng: np.random.Generator,
+             n_out: int | None = None) -> tuple[FloatArray, FloatArray]:
+    """Systematic resampling; returns the new poses and uniform log-weights."""
+    idx = resampling.systematic_resample(np.exp(log_w - log_w.max()), rng, n_out)
+    n = idx.shape[0]
+    return poses[idx].copy(), np.full(n, -math.log(n))
+
+
+def inject(poses: FloatArray, n_inject: int, tables: SensorTables,
+           measurement: Measurement | None, candidates: int,
+           rng: np.random.Generator) -> FloatArray:
+    """Replace ``n_inject`` random particles by poses drawn over the free space.
+
+    With a ``measurement``, ``candidates * n_inject`` uniform poses are scored and the
+    injected ones are drawn among them in proportion to their likelihood.
+    """
+    if n_inject <= 0:
+        return poses
+    out = poses.copy()
+    slots = rng.choice(poses.shape[0], size=n_inject, replace=False)
+    if measurement is None or candidates == 1:
+        out[slots] = init_global(tables, n_inject, rng)
+        return out
+    cand = init_global(tables, candidates * n_inject, rng)
+    ll = pose_log_likelihood(tables, measurement, cand, floor=True)
+    pick = resampling.systematic_resample(np.exp(ll - ll.max()), rng, n_inject)
+    out[slots] = cand[rng.permutation(pick)]
+    return out
+
+
+def kld_count(poses: FloatArray, config: FilterConfig) -> int:
+    """Particles needed for KL error ``kld_epsilon`` at confidence ``1 - kld_delta``."""
+    keys = np.stack([np.floor(poses[:, 0] / config.kld_bin_m),
+                     np.floor(poses[:, 1] / config.kld_bin_m),
+                     np.floor((poses[:, 2] + np.pi) / config.kld_bin_rad)], axis=1)
+    k = np.unique(keys, axis=0).shape[0]
+    if k <= 1:
+        return config.n_min
+    z = float(norm.ppf(1 - config.kld_delta))
+    a = 2.0 / (9.0 * (k - 1))
+    n = (k - 1) / (2 * config.kld_epsilon) * (1 - a + math.sqrt(a) * z) ** 3
+    return int(np.clip(math.ceil(n), config.n_min, config.n_max))
+
+
+def _smooth(log_avg: float, log_new: float, alpha: float) -> float:
+    """``log((1 - alpha) exp(log_avg) + alpha exp(log_new))``: an exponential average in logs."""
+    return float(np.logaddexp(math.log1p(-alpha) + log_avg, math.log(alpha) + log_new)) \
+        if alpha < 1 else log_new
+
+
+# ---- the stateful object -------------------------------------------------------------------
+class ParticleFilter:
+    """Particle filter over (x_m, y_m, heading_rad) on one wall map.
+
+    Parameters
+    ----------
+    tables : SensorTables
+        Lookup tables of the map (:func:`localization.sensor.build_tables`); shared, read-only.
+    config : FilterConfig
+    rng : numpy.random.Generator
+        Owned by the filter from now on (its state is part of :meth:`state_dict`).
+    pose, cov : array-like, optional
+        Tracked initialization (3,), (3, 3). Without them the filter starts global.
+    """
+
+    def __init__(self, tables: SensorTables, config: FilterConfig, rng: np.random.Generator,
+                 pose: FloatArray | None = None, cov: FloatArray | None = None) -> None:
+        self.tables = tables
+        self.config = config
+        self.rng = rng
+        self.log_w_slow = -np.inf
+        self.log_w_fast = -np.inf
+        self.n_steps = 0
+        if pose is None:
+            self.reset_global()
+        else:
+            self.reset_tracked(pose, np.diag([0.1**2, 0.1**2, math.radians(10) ** 2])
+                               if cov is None else cov)
+
+    # -- initialization
+    def reset_global(self) -> None:
+        """Uniform over the free space (global localization)."""
+        n = self.config.n_particles
+        self.poses = init_global(self.tables, n, self.rng)
+        self.log_w = np.full(n, -math.log(n))
+        self.log_w_slow = self.log_w_fast = -np.inf
+
+    def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
+        """Gaussian around a known pose."""
+        n = self.config.n_particles
+        self.poses = init_tracked(pose, cov, n, self.rng)
+        self.log_w = np.full(n, -math.log(n))
+        self.log_w_slow = self.log_w_fast = -np.inf
+
+    @property
+    def n_particles(self) -> int:
+        """Current particle count."""
+        return int(self.poses.shape[0])
+
+    # -- one block
+    def step(self, heat_map: HeatMap | None, speed_m_s: float, yaw_rate_rad_s: float,
+             dt_s: float) -> PoseEstimate:
+        """Advance by one block.
+
+        Parameters
+        ----------
+        heat_map : HeatMap or None
+            The block's heat map; None (a silent or missing block) predicts only.
+        speed_m_s, yaw_rate_rad_s : float
+            Odometry of the motion since the previous block's midpoint.
+        dt_s : float
+            Time since the previous block's midpoint (0 for the first block).
+
+        Raises
+        ------
+        ValueError
+            Bad heat map or odometry; the filter state is then unchanged.
+        """
+        motion.odometry_increment(speed_m_s, yaw_rate_rad_s, dt_s)   # validates
+        meas = None if heat_map is None else prepare_measurement(heat_map, self.tables.config)
+        rng_state = self.rng.bit_generator.state
+        try:
+            return self._commit(meas, speed_m_s, yaw_rate_rad_s, dt_s)
+        except BaseException:
+            self.rng.bit_generator.state = rng_state
+            raise
+
+    def _commit(self, meas: Measurement | None, speed_m_s: float, yaw_rate_rad_s: float,
+                dt_s: float) -> PoseEstimate:
+        cfg = self.config
+        poses = predict(self.poses, speed_m_s, yaw_rate_rad_s, dt_s, cfg.motion, self.rng)
+        log_w = self.log_w
+        slow, fast = self.log_w_slow, self.log_w_fast
+        if meas is not None:
+            log_w, log_avg = weigh(log_w, poses, self.tables, meas)
+            if not np.isfinite(slow):
+                slow = fast = log_avg
+            else:
+                slow = _smooth(slow, log_avg, cfg.alpha_slow)
+                fast = _smooth(fast, log_avg, cfg.alpha_fast)
+        ess = resampling.effective_sample_size(log_w)
+        estimate = summarize(
+            poses, log_w, cfg.cluster, ess=ess,
+            direction_observable=bool(meas is not None and meas.direction_observable),
+            updated=meas is not None, model="none" if meas is None else meas.model)
+        if meas is not None and ess < cfg.resample_ess_fraction * poses.shape[0]:
+            n_out = kld_count(poses, cfg) if cfg.kld else poses.shape[0]
+            poses, log_w = resample(poses, log_w, self.rng, n_out)
+            p_inject = 0.0
+            if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
+                p_inject = max(0.0, 1.0 - math.exp(min(fast - slow, 0.0)))
+            n_inject = int(self.rng.binomial(n_out, min(p_inject, cfg.max_inject_fraction)))
+            if n_inject:
+                poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
+                               self.rng)
+                slow = fast = float(np.logaddexp(slow, fast) - math.log(2.0))
+        self.poses, self.log_w = poses, log_w
+        self.log_w_slow, self.log_w_fast = slow, fast
+        self.n_steps += 1
+        return estimate
+
+    # -- checkpointing
+    def state_dict(self) -> dict[str, NDArray[Any]]:
+        """The whole filter state as numpy arrays (``np.savez``-able without pickle)."""
+        return {
+            "format": np.array(STATE_FORMAT),
+            "config": np.array(self.config.to_json()),
+            "poses": self.poses.copy(),
+            "log_w": self.log_w.copy(),
+            "log_w_slow_fast": np.array([self.log_w_slow, self.log_w_fast]),
+            "n_steps": np.array(self.n_steps, dtype=np.int64),
+            "rng": np.array(json.dumps(self.rng.bit_generator.state)),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: Mapping[str, NDArray[Any]],
+                        tables: SensorTables) -> ParticleFilter:
+        """Rebuild a filter from :meth:`state_dict` output on the same map's tables."""
+        if str(state.get("format", "")) != STATE_FORMAT:
+            raise ValueError(f"state 'format' must be {STATE_FORMAT!r}")
+        poses = np.array(state["poses"], dtype=np.float64)
+        log_w = np.array(state["log_w"], dtype=np.float64)
+        if poses.ndim != 2 or poses.shape[1] != 3 or log_w.shape != (poses.shape[0],):
+            raise ValueError("state 'poses' must be (n, 3) and 'log_w' (n,)")
+        rng_state = json.loads(str(state["rng"]))
+        rng = np.random.Generator(getattr(np.random, rng_state["bit_generator"])())
+        rng.bit_generator.state = rng_state
+        pf = cls.__new__(cls)
+        pf.tables = tables
+        pf.config = FilterConfig.from_json(str(state["config"]))
+        pf.rng = rng
+        pf.poses, pf.log_w = poses, log_w
+        pf.log_w_slow, pf.log_w_fast = (float(v) for v in state["log_w_slow_fast"])
+        pf.n_steps = int(state["n_steps"])
+        return pf
