@@ -7,6 +7,7 @@ length ``s`` into a primitive is exact and cheap::
     heading(s) = theta0 + kappa s
     p(s) = p0 + s sinc(kappa s / 2) [cos(theta0 + kappa s / 2), sin(theta0 + kappa s / 2)]
 
+(evaluated in a numba kernel, ``_path_kernels.py``, with a numpy twin for the tests),
 so speed is constant *exactly* (``|velocity| = speed``), velocity is continuous (C1) wherever
 consecutive primitives share their end tangent, and yaw rate is ``speed * kappa``.
 
@@ -38,6 +39,9 @@ if TYPE_CHECKING:
     from mapping.scene import Scene
 
 FloatArray = NDArray[np.float64]
+
+#: Inputs at least this long use the multi-threaded kernel.
+_PARALLEL_MIN_TIMES = 200_000
 
 #: Default robot speed of the paper (Sec. 4) in m/s.
 PAPER_SPEED_M_S = 0.1
@@ -119,24 +123,37 @@ class Trajectory:
             theta = np.where(after, end_theta, theta)
         return theta
 
+    def position_velocity(self, t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Position (n, 2) in m and velocity (n, 2) in m/s at times ``t_s``, in one pass.
+
+        Outside ``[0, duration_s]`` the robot moves straight at constant velocity along the
+        end tangents. Runs in a numba kernel (twin: :func:`position_velocity_numpy`).
+        """
+        from mapping._path_kernels import _position_velocity, _position_velocity_parallel
+
+        t = np.ascontiguousarray(t_s, dtype=np.float64)
+        if t.ndim != 1:
+            raise ValueError(f"t_s must be a 1-D array, got shape {t.shape}")
+        pos = np.empty((t.size, 2))
+        vel = np.empty((t.size, 2))
+        ex, ey, eth = self._end_state()
+        args = (self.cruise_speed_m_s, self.s0_m, self.x0_m, self.y0_m, self.theta0_rad,
+                self.kappa_1_m, self.total_length_m, ex, ey, eth, pos, vel)
+        if t.size >= _PARALLEL_MIN_TIMES:
+            import numba
+
+            _position_velocity_parallel(t, numba.get_num_threads(), *args)
+        else:  # threads cost more than they save on small inputs (and on a busy machine)
+            _position_velocity(t, 0, t.size, *args)
+        return pos, vel
+
     def position(self, t_s: ArrayLike) -> FloatArray:
         """Position (n, 2) in metres at times ``t_s`` (extrapolated straight outside [0, T])."""
-        s, ds, idx, kappa = self._locate(t_s)
-        x0, y0, th0 = self.x0_m[idx], self.y0_m[idx], self.theta0_rad[idx]
-        after = s > self.total_length_m
-        if after.any():  # continue from the end point along the end tangent
-            end = self._end_state()
-            x0 = np.where(after, end[0], x0)
-            y0 = np.where(after, end[1], y0)
-            th0 = np.where(after, end[2], th0)
-            ds = np.where(after, s - self.total_length_m, ds)
-        half = 0.5 * kappa * ds
-        chord = ds * np.sinc(half / np.pi)
-        mid = th0 + half
-        out = np.empty((ds.size, 2))
-        out[:, 0] = x0 + chord * np.cos(mid)
-        out[:, 1] = y0 + chord * np.sin(mid)
-        return out
+        return self.position_velocity(t_s)[0]
+
+    def velocity(self, t_s: ArrayLike) -> FloatArray:
+        """Velocity (n, 2) in m/s: ``speed * (cos heading, sin heading)``."""
+        return self.position_velocity(t_s)[1]
 
     def _end_state(self) -> tuple[float, float, float]:
         """Exact end point and heading of the last primitive."""
@@ -146,12 +163,6 @@ class Trajectory:
         chord = ds * float(np.sinc(half / np.pi))
         return (float(self.x0_m[-1]) + chord * math.cos(th0 + half),
                 float(self.y0_m[-1]) + chord * math.sin(th0 + half), th0 + 2 * half)
-
-    def velocity(self, t_s: ArrayLike) -> FloatArray:
-        """Velocity (n, 2) in m/s: ``speed * (cos heading, sin heading)``."""
-        theta = self._heading_unwrapped(t_s)
-        v = self.cruise_speed_m_s
-        return np.stack([v * np.cos(theta), v * np.sin(theta)], axis=1)
 
     def heading_rad(self, t_s: ArrayLike) -> FloatArray:
         """Direction of travel (n,) wrapped to (-pi, pi]."""
@@ -176,6 +187,28 @@ def wrap_angle(theta_rad: ArrayLike) -> FloatArray:
     """Wrap angles to (-pi, pi]."""
     th = np.asarray(theta_rad, dtype=np.float64)
     return np.pi - np.mod(np.pi - th, 2.0 * np.pi)
+
+
+def position_velocity_numpy(trajectory: Trajectory,
+                            t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Plain numpy twin of :meth:`Trajectory.position_velocity` (same formulas; for tests)."""
+    tr = trajectory
+    s, ds, idx, kappa = tr._locate(t_s)
+    x0, y0, th0 = tr.x0_m[idx], tr.y0_m[idx], tr.theta0_rad[idx]
+    after = s > tr.total_length_m
+    if after.any():  # continue from the end point along the end tangent
+        end = tr._end_state()
+        x0 = np.where(after, end[0], x0)
+        y0 = np.where(after, end[1], y0)
+        th0 = np.where(after, end[2], th0)
+        ds = np.where(after, s - tr.total_length_m, ds)
+    half = 0.5 * kappa * ds
+    chord = ds * np.sinc(half / np.pi)
+    mid = th0 + half
+    pos = np.column_stack([x0 + chord * np.cos(mid), y0 + chord * np.sin(mid)])
+    theta = th0 + 2.0 * half
+    v = tr.cruise_speed_m_s
+    return pos, np.column_stack([v * np.cos(theta), v * np.sin(theta)])
 
 
 # ---- construction ------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from mapping.path import (
     min_wall_distance_m,
     path_inside,
     polyline_path,
+    position_velocity_numpy,
     stationary_path,
     wrap_angle,
 )
@@ -273,3 +274,36 @@ def test_property_random_polylines(case: tuple[np.ndarray, float], speed: float)
     eps = 1e-12 / speed  # 1e-12 m of arc length either side of each joint
     np.testing.assert_allclose(tr.velocity(tj - eps), tr.velocity(tj + eps), atol=1e-9 * speed)
     np.testing.assert_allclose(tr.position(tj - eps), tr.position(tj + eps), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", builtin_path_names())
+def test_kernel_matches_numpy_twin(name: str) -> None:
+    tr = builtin_path(name)
+    rng = np.random.default_rng(5)
+    t = np.concatenate([
+        rng.uniform(-20.0, tr.duration_s + 20.0, 3000),
+        [0.0, tr.duration_s, -1e-12, tr.duration_s + 1e-12],
+        _joint_times(tr),
+    ])
+    pos, vel = tr.position_velocity(t)
+    pos_np, vel_np = position_velocity_numpy(tr, t)
+    np.testing.assert_allclose(pos, pos_np, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vel, vel_np, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(tr.position(t), pos)
+    np.testing.assert_array_equal(tr.velocity(t), vel)
+
+
+def test_parallel_kernel_matches_numpy_twin() -> None:
+    tr = builtin_path("pillar-curve")
+    t = np.random.default_rng(6).uniform(-10.0, tr.duration_s + 10.0, 250_000)  # >= threshold
+    pos, vel = tr.position_velocity(t)
+    pos_np, vel_np = position_velocity_numpy(tr, t)
+    np.testing.assert_allclose(pos, pos_np, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vel, vel_np, rtol=0, atol=1e-15)
+
+
+def test_kernel_matches_numpy_twin_when_stationary() -> None:
+    tr = stationary_path([0.5, -1.0], heading_rad=1.0, duration_s=3.0)
+    t = np.linspace(-2.0, 5.0, 29)
+    for got, want in zip(tr.position_velocity(t), position_velocity_numpy(tr, t), strict=True):
+        np.testing.assert_array_equal(got, want)
