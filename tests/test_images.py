@@ -36,11 +36,11 @@ def _trace(segments: np.ndarray, xy: tuple[float, float], order: int):
 def _valid_points(segments: np.ndarray, xy: tuple[float, float], order: int) -> dict:
     images, tr = _trace(segments, xy, order)
     pts = images.positions(np.array([xy], float))[:, 0]
-    return {
-        tuple(np.round(pts[i], 9)): (int(tr.order[i, 0]), tuple(tr.walls[i, 0][tr.walls[i, 0] >= 0]))
-        for i in range(images.n)
-        if tr.valid[i, 0]
-    }
+    out = {}
+    for i in np.flatnonzero(tr.valid[:, 0]):
+        walls = tuple(int(w) for w in tr.walls[i, 0] if w >= 0)
+        out[tuple(np.round(pts[i], 9))] = (int(tr.order[i, 0]), walls)
+    return out
 
 
 def test_shoebox_images_up_to_order_two_by_hand():
@@ -143,7 +143,7 @@ def _brute_valid(segments: np.ndarray, x: np.ndarray, walls: tuple[int, ...]) ->
         target = target + s * r
         points.append(target)
     legs = list(itertools.pairwise([x, *points, x]))
-    for i, (p, q) in enumerate(legs):
+    for p, q in legs:
         for w in range(len(segments)):
             if _crosses(p, q, segments[w]):
                 return False

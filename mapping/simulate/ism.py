@@ -460,39 +460,57 @@ def render_stretch(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) ->
     return out
 
 
-def _render_numpy(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
-    """Plain numpy twin of the kernel (table or windowed sinc), for tests."""
-    fs = config.fs_hz
+def delay_at_samples(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
+    """Retarded delay of every active path at every sample of the stretch (n_paths, n).
+
+    Cubic Hermite interpolation of the Newton solutions on the delay grid, with their exact
+    time derivatives: the numpy form of what the kernel does per sample.
+    """
     absn = plan.start_sample + np.arange(plan.n_samples)
-    t = absn / fs
-    ph = (absn % config.period_samples).astype(np.float64)
-    ht, hv = engine.delay_grid_s, engine.validity_grid_s
+    t = absn / config.fs_hz
+    ht = engine.delay_grid_s
     ut = t / ht - plan.tau_first_node
     kt = np.floor(ut).astype(np.int64)
     ft = ut - kt
-    ug = t / hv - plan.gain_first_node
-    kg = np.floor(ug).astype(np.int64)
-    fg = ug - kg
-    half = engine.fade_s / (2 * hv)
-    lo = 0.5 - half
-    ramp = np.clip((fg - lo) / (2 * half), 0.0, 1.0)
-    ramp = 0.5 - 0.5 * np.cos(np.pi * ramp)
     h00 = (1 + 2 * ft) * (1 - ft) ** 2
     h10 = ft * (1 - ft) ** 2
     h01 = ft**2 * (3 - 2 * ft)
     h11 = ft**2 * (ft - 1)
+    return np.asarray(
+        h00 * plan.tau[:, kt]
+        + h10 * ht * plan.dtau[:, kt]
+        + h01 * plan.tau[:, kt + 1]
+        + h11 * ht * plan.dtau[:, kt + 1]
+    )
+
+
+def gain_at_samples(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
+    """Gain of every active path at every sample (n_paths, n): the validity grid with
+    raised-cosine fades of ``fade_s`` centred between nodes that differ."""
+    absn = plan.start_sample + np.arange(plan.n_samples)
+    t = absn / config.fs_hz
+    hv = engine.validity_grid_s
+    ug = t / hv - plan.gain_first_node
+    kg = np.floor(ug).astype(np.int64)
+    fg = ug - kg
+    half = engine.fade_s / (2 * hv)
+    ramp = np.clip((fg - (0.5 - half)) / (2 * half), 0.0, 1.0)
+    ramp = 0.5 - 0.5 * np.cos(np.pi * ramp)
+    g0, g1 = plan.gain[:, kg], plan.gain[:, kg + 1]
+    return np.asarray(g0 + (g1 - g0) * ramp)
+
+
+def _render_numpy(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
+    """Plain numpy twin of the kernel (table or windowed sinc), for tests."""
+    fs = config.fs_hz
+    absn = plan.start_sample + np.arange(plan.n_samples)
+    ph = (absn % config.period_samples).astype(np.float64)
+    taus = delay_at_samples(plan, config, engine)
+    gains = gain_at_samples(plan, config, engine)
     out = np.zeros(plan.n_samples)
     for i in range(plan.active.size):
-        g = plan.gain[i, kg] + (plan.gain[i, kg + 1] - plan.gain[i, kg]) * ramp
-        tau = (
-            h00 * plan.tau[i, kt]
-            + h10 * ht * plan.dtau[i, kt]
-            + h01 * plan.tau[i, kt + 1]
-            + h11 * ht * plan.dtau[i, kt + 1]
-        )
-        amp = (config.sound_speed_m_s * tau) ** (-spreading_power(engine.spreading))
-        pos = ph - tau * fs
-        out += g * amp * _signal_numpy(pos, config, engine)
+        amp = (config.sound_speed_m_s * taus[i]) ** (-spreading_power(engine.spreading))
+        out += gains[i] * amp * _signal_numpy(ph - taus[i] * fs, config, engine)
     return out
 
 
