@@ -404,3 +404,32 @@ def test_bad_block_count_raises():
     with pytest.raises(ValueError, match="n_blocks"):
         next(iter_ism_blocks(builtin_scene("paper"), builtin_path("paper-a"), CFG1, 0,
                              IsmConfig(), np.random.default_rng(0)))
+
+
+# ---- the paper's Fig. 5(a): heat map of a simulated block at point (a) --------------------------
+def test_heat_map_at_point_a_peaks_at_the_paper_walls_and_corner():
+    from mapping.heatmap import doppler_heatmap, required_margin
+
+    cfg = SonarConfig()
+    scene, traj = builtin_scene("paper"), builtin_path("paper-a")
+    k = 13  # block midpoint at 13.8 s: the robot is at (1.98, 1.98), the paper's point (a)
+    blocks = list(iter_ism_blocks(scene, traj, cfg, 3, IsmConfig(order=2),
+                                  np.random.default_rng(0), k - 1))
+    margin = required_margin(cfg, 0.1)
+    ext = np.concatenate([blocks[0].samples[-margin:], blocks[1].samples,
+                          blocks[2].samples[:margin]])
+    hm = doppler_heatmap(ext, blocks[1].speed_m_s, cfg, left=margin, right=margin)
+    x, y, heading = blocks[1].pose
+    assert np.hypot(x - 2, y - 2) < 0.05
+
+    def level(px: float, py: float) -> float:
+        d = np.array([px - x, py - y])
+        theta = abs(math.remainder(math.atan2(d[1], d[0]) - heading, 2 * math.pi))
+        n = int(np.argmin(np.abs(hm.angles_rad - theta)))
+        j = int(np.argmin(np.abs(hm.ranges_m - np.linalg.norm(d))))
+        return float(hm.H[max(n - 1, 0): n + 2, max(j - 12, 0): j + 13].max() / hm.H.max())
+
+    # Sec. 5: peaks at (2, 4) (Wall 1) and (4.5, 2) (Wall 2), and the corner (4.5, 4)
+    assert level(2.0, 4.0) > 0.5 and level(4.5, 2.0) > 0.5 and level(4.5, 4.0) > 0.3
+    # nothing where there is no wall: straight ahead at 1.5 m, sideways at 1.4 m
+    assert level(x + 1.06, y + 1.06) < 0.1 and level(1.0, 3.0) < 0.1
