@@ -127,10 +127,14 @@ class Wall(BaseModel):
     @property
     def reflection_coefficient(self) -> float:
         """Pressure reflection coefficient R (rigid = 1; from Z with the scene's rho c)."""
+        return self.reflection_coefficient_for(self._rho_c_pa_s_m)
+
+    def reflection_coefficient_for(self, rho_c_pa_s_m: float) -> float:
+        """R of this wall in a medium of characteristic impedance ``rho_c_pa_s_m`` (Pa s/m)."""
         if self.reflection is not None:
             return float(self.reflection)
         if self.impedance_pa_s_m is not None:
-            return reflection_from_impedance(self.impedance_pa_s_m, self._rho_c_pa_s_m)
+            return reflection_from_impedance(self.impedance_pa_s_m, rho_c_pa_s_m)
         return 1.0
 
 
@@ -171,7 +175,9 @@ class Scene(BaseModel):
 
     def reflection_coefficients(self) -> NDArray[np.float64]:
         """Pressure reflection coefficient R of every wall, float64 (W,)."""
-        return np.array([w.reflection_coefficient for w in self.walls], dtype=np.float64)
+        rho_c = self.rho_kg_m3 * self.sound_speed_m_s
+        return np.array([w.reflection_coefficient_for(rho_c) for w in self.walls],
+                        dtype=np.float64)
 
     def bounds_m(self) -> tuple[float, float, float, float]:
         """Bounding box of all walls: ``(xmin, ymin, xmax, ymax)`` in metres."""

@@ -75,6 +75,10 @@ def test_wall_reflection_defaults_and_scene_medium() -> None:
     scene = Scene(name="w", walls=[w], rho_kg_m3=2 * 1.293)
     assert scene.walls[0].reflection_coefficient == pytest.approx(-1 / 3, rel=1e-12)
     assert w.reflection_coefficient == pytest.approx(0.0, abs=1e-15)
+    np.testing.assert_allclose(scene.reflection_coefficients(), [-1 / 3], rtol=1e-12)
+    # an updated copy of the scene uses its own medium
+    thin = scene.model_copy(update={"rho_kg_m3": 1.293})
+    np.testing.assert_allclose(thin.reflection_coefficients(), [0.0], atol=1e-15)
 
 
 def test_json_accepts_inf_string() -> None:
