@@ -39,7 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.sensor import SensorTables, pose_log_likelihood, prepare_measurement
-from mapping.heatmap import HeatMap
+from mapping.heatmap import HeatMap, heatmap_of_run
+from mapping.runfile import Run
 
 FloatArray = NDArray[np.float64]
 LogLikelihood = Callable[[FloatArray], FloatArray]
@@ -1139,3 +1140,57 @@ def compare_cloud(
         mean_nees=float(dm @ ic @ dm), kl_posterior_to_cloud=float(kl),
         nees_truth=None if t is None else nees(t, m_cloud, c_cloud),
         nees_truth_posterior=None if t is None else nees(t, m_post, c_post))
+
+
+# ---- runs and records -----------------------------------------------------------------
+def check_block_range(start: int, stop: int, n_blocks: int) -> None:
+    """Raise ``ValueError`` unless ``0 <= start < stop <= n_blocks`` (blocks start..stop-1)."""
+    if not 0 <= start < stop <= n_blocks:
+        raise ValueError(f"blocks must be A:B with 0 <= A < B <= {n_blocks} (the run's block "
+                         f"count; B exclusive), got {start}:{stop}")
+
+
+def window_from_run(
+    run: Run, start: int, stop: int, tables: SensorTables
+) -> tuple[LogLikelihood, FloatArray]:
+    """Window log-likelihood of blocks ``start..stop-1`` of a run, and the first block's pose.
+
+    Heat maps come from :func:`mapping.heatmap.heatmap_of_run` (paper eq. 1), odometry from
+    the run. The pose (3,) is the tracked pose of block ``start`` (NaN where untracked).
+    """
+    check_block_range(start, stop, run.n_blocks)
+    heat_maps = [heatmap_of_run(run, k) for k in range(start, stop)]
+    loglik = sensor_window_log_likelihood(
+        tables, heat_maps, run.speed_m_s[start:stop], run.yaw_rate_rad_s[start:stop],
+        run.config.block_s)
+    return loglik, np.asarray(run.pose[start], dtype=np.float64)
+
+
+def result_arrays(result: PosteriorResult) -> dict[str, FloatArray]:
+    """The result as flat arrays for an ``.npz`` record (see the README's posterior format)."""
+    modes = result.modes
+    return {
+        "samples": result.samples,
+        "log_prob": result.log_prob,
+        "weights": result.weights,
+        "mode_index": result.mode_index.astype(np.float64),
+        "mode_mass": np.array([m.mass for m in modes]),
+        "mode_mass_coarse": np.array([m.mass_coarse for m in modes]),
+        "mode_mean": np.array([m.mean for m in modes]),
+        "mode_cov": np.array([m.cov for m in modes]),
+        "mode_interval68": np.array([m.interval68 for m in modes]),
+        "mode_interval95": np.array([m.interval95 for m in modes]),
+        "mode_heading_circular_std_rad": np.array([m.heading_circular_std_rad for m in modes]),
+        "mode_tau": np.array([m.tau for m in modes]),
+        "mode_acceptance": np.array([m.acceptance_fraction for m in modes]),
+        "mode_n_steps": np.array([m.n_steps for m in modes], dtype=np.float64),
+        "mode_converged": np.array([m.converged for m in modes], dtype=np.float64),
+        "mode_hellinger": np.array([m.comparison.hellinger for m in modes]),
+        "mode_hellinger_iid": np.array([m.comparison.hellinger_iid for m in modes]),
+        "mode_kl": np.array([m.comparison.kl_grid_to_samples for m in modes]),
+        "mode_coverage68": np.array([m.comparison.coverage68 for m in modes]),
+        "mode_coverage95": np.array([m.comparison.coverage95 for m in modes]),
+        "hpd_levels": np.array(result.hpd_levels),
+        "hpd_log_prob": np.array(result.hpd_log_prob),
+        "hpd_volume_m2_rad": np.array(result.hpd_volume),
+    }

@@ -184,11 +184,195 @@ def _cmd_export_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- posterior (issue 8: offline emcee study of the pose posterior) -----------------------
+def _add_posterior(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("posterior", help="sample the pose posterior of a block window (emcee)")
+    p.add_argument("run", help="run file (.npz)")
+    p.add_argument("--map", required=True, help="wall map file (.npz)")
+    p.add_argument("--blocks", required=True, help="A:B, blocks A..B-1 tied by odometry")
+    p.add_argument("--walkers", type=int, default=32, help="walkers per mode (>= 6)")
+    p.add_argument("--steps", type=int, default=1000, help="first batch of steps per mode")
+    p.add_argument("--max-steps", type=int, default=20000, help="cap while reaching 50 tau")
+    p.add_argument("--model", choices=("correlation", "range"), default="correlation")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output .npz (samples and diagnostics)")
+    p.add_argument("--png", help="corner plot PNG")
+    p.set_defaults(func=_cmd_posterior)
+
+
+def _cmd_posterior(args: argparse.Namespace) -> int:
+    import json
+
+    from tqdm import tqdm
+
+    from localization import posterior as post
+    from localization.sensor import SensorConfig, build_tables
+    from mapping.mapfile import read_map
+    from mapping.runfile import atomic_savez, read_run
+
+    try:
+        a, b = (int(v) for v in args.blocks.split(":"))
+    except ValueError:
+        raise ValueError(f"--blocks must be A:B with integers A < B, got {args.blocks!r}") from None
+    settings = post.PosteriorSettings(n_walkers=args.walkers, n_steps=args.steps,
+                                      max_steps=max(args.max_steps, args.steps))
+    run = read_run(args.run)
+    post.check_block_range(a, b, run.n_blocks)
+    tables = build_tables(read_map(args.map), SensorConfig(model=args.model))
+    loglik, truth = post.window_from_run(run, a, b, tables)
+    result = None
+    with tqdm(total=0, unit="step", desc="grid posterior") as bar:
+        for ev in post.iter_posterior(loglik, post.prior_from_tables(tables),
+                                      np.random.default_rng(args.seed), settings):
+            if ev.stage == "sample":
+                bar.set_description(f"mode {ev.mode + 1}/{ev.n_modes}")
+                bar.total = ev.planned_steps
+                bar.n = ev.step
+                bar.refresh()
+            result = ev.result if ev.result is not None else result
+    assert result is not None
+    arrays = post.result_arrays(result)
+    arrays["truth"] = truth
+    arrays["blocks"] = np.array([a, b], dtype=np.float64)
+    arrays["meta"] = np.array(json.dumps({"run": str(args.run), "map": str(args.map),
+                                          "seed": args.seed, "model": args.model}))
+    atomic_savez(Path(args.out), arrays)
+    if args.png:
+        from service.posterior_plot import write_corner_png
+
+        write_corner_png(Path(args.png), result, truth, f"{Path(args.run).name} blocks {a}:{b}")
+    for k, m in enumerate(result.modes):
+        err = "" if not np.all(np.isfinite(truth)) else (
+            f", error {np.hypot(*(m.mean[:2] - truth[:2])) * 100:.1f} cm "
+            f"{np.degrees(post.wrap_angle(m.mean[2] - truth[2])):+.1f} deg")
+        print(f"mode {k}: mass {m.mass:.3f} at ({m.mean[0]:.3f}, {m.mean[1]:.3f}) m, "
+              f"{np.degrees(m.mean[2]):.1f} deg; sd {np.sqrt(m.cov[0, 0]) * 100:.1f} / "
+              f"{np.sqrt(m.cov[1, 1]) * 100:.1f} cm, {np.degrees(m.heading_circular_std_rad):.1f}"
+              f" deg; tau {np.max(m.tau):.1f}, acceptance {m.acceptance_fraction:.2f}, "
+              f"{m.n_steps} steps, {'converged' if m.converged else 'NOT converged'}{err}")
+    print(f"wrote {args.out}" + (f" and {args.png}" if args.png else ""))
+    return 0
+
+
+# ---- serve / demo-api (the HTTP service: service/app.py) ----------------------------------
+def _add_serve(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help="run the localization HTTP service (uvicorn)")
+    p.add_argument("--maps", help="maps directory (default: $OMNISONAR_MAPS_DIR or var/maps)")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--log-level", default="info")
+    p.set_defaults(func=_cmd_serve)
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from service.server import serve
+
+    serve(None if args.maps is None else Path(args.maps), args.host, args.port, args.log_level)
+    return 0
+
+
+def _add_demo_api(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo-api", help="start the service, stream a held-out run, stop it")
+    p.add_argument("--out", default="out/demo-api", help="work directory (maps, sessions)")
+    p.add_argument("--blocks", type=int, default=None, help="stream only the first N blocks")
+    p.add_argument("--particles", type=int, default=2000)
+    p.add_argument("--global", dest="global_init", action="store_true",
+                   help="start the filter globally instead of from the first true pose")
+    p.set_defaults(func=_cmd_demo_api)
+
+
+def _cmd_demo_api(args: argparse.Namespace) -> int:
+    from service.demo_client import run_demo
+
+    run_demo(Path(args.out), args.blocks, args.particles, args.global_init)
+    return 0
+
+
+# ---- simulate (issue 3) ----------------------------------------------------------------
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="simulate a run of the sonar along a path in a scene")
+    p.add_argument("--scene", required=True, help="builtin:NAME or a scene JSON file")
+    p.add_argument("--path", required=True, help="built-in path NAME (or builtin:NAME)")
+    p.add_argument("--engine", default="ism", help="forward model (default ism: image sources)")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--blocks", type=int, help="number of 1.023 s blocks")
+    length.add_argument("--duration", type=float, help="seconds to simulate (whole blocks)")
+    p.add_argument("--snr-db", type=float, help="add white noise at this per-sample SNR")
+    p.add_argument("--seed", type=int, default=0, help="random seed (noise, tail; default 0)")
+    p.add_argument("--order", type=int, help="reflection order (default: automatic)")
+    p.add_argument("--spreading", choices=["3d", "2d"], default="3d",
+                   help="3d: 1/r point source (default); 2d: line source, as a 2-D FDTD")
+    p.add_argument("--rt60", type=float, help="add a diffuse reverberant tail (seconds)")
+    p.add_argument("--odometry-noise", type=float, default=0.0,
+                   help="std of the recorded speed noise in m/s")
+    p.add_argument("--speed", type=float, default=0.1, help="path speed in m/s (default 0.1)")
+    p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
+    p.add_argument("--out", required=True, help="output run file (.npz)")
+    p.set_defaults(func=_cmd_simulate)
+
+
+def _engine_config(args: argparse.Namespace) -> object:
+    """Engine parameters from the command line (only the ISM has options here)."""
+    from mapping.simulate import ENGINES, IsmConfig
+
+    if args.engine not in ENGINES:
+        raise ValueError(f"--engine must be one of {sorted(ENGINES)}, got {args.engine!r}")
+    if args.engine == "ism":
+        return IsmConfig(order=args.order, spreading=args.spreading, snr_db=args.snr_db,
+                         odometry_noise_m_s=args.odometry_noise, rt60_s=args.rt60)
+    return ENGINES[args.engine][0]()
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    import math
+    import time
+
+    from tqdm import tqdm
+
+    from mapping.runfile import write_run
+    from mapping.simulate import assemble_run, iter_blocks, run_meta
+
+    config = _load_config(args.config)
+    scene = resolve_scene(args.scene)
+    spec = args.path if args.path.startswith("builtin:") else f"builtin:{args.path}"
+    trajectory = resolve_path(spec, speed_m_s=args.speed)
+    if args.blocks is not None:
+        n_blocks = args.blocks
+    else:
+        seconds = trajectory.duration_s if args.duration is None else args.duration
+        n_blocks = max(1, math.ceil(seconds / config.block_s - 1e-9))
+    if n_blocks < 1:
+        raise ValueError(f"--blocks must be >= 1, got {n_blocks}")
+    engine = _engine_config(args)
+    rng = np.random.default_rng(args.seed)
+    start = time.perf_counter()
+    blocks = []
+    stream = iter_blocks(scene, trajectory, config, n_blocks, engine, rng)
+    try:
+        for block in tqdm(stream, total=n_blocks, unit="block", desc="simulate"):
+            blocks.append(block)
+    except KeyboardInterrupt:
+        print(f"interrupted after {len(blocks)} blocks; nothing written", file=sys.stderr)
+        return 130
+    meta = run_meta(scene, trajectory, engine, args.seed, blocks)
+    run = assemble_run(blocks, config, scene.to_json(), meta)
+    out = write_run(args.out, run)
+    elapsed = time.perf_counter() - start
+    print(f"wrote {out}: {n_blocks} blocks ({n_blocks * config.block_s:.1f} s) of "
+          f"{trajectory.name} in {scene.name}, engine {meta['engine']}, order "
+          f"{meta.get('order')}, {elapsed:.1f} s")
+    return 0
+
+
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_scenes,
     _add_import_run,
     _add_export_run,
     _add_signal,
+    _add_simulate,
+    _add_serve,
+    _add_demo_api,
+    _add_posterior,
 ]
 
 
