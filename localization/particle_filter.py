@@ -66,6 +66,9 @@ class FilterConfig:
     inject_candidates : int
         Candidates drawn per injected particle; the injected ones are picked among them by
         the current block's likelihood.
+    global_oversample : int
+        A global initialization draws this many times ``n_particles``; the first
+        resampling brings the count back to ``n_particles``.
     kld : bool
         KLD-adaptive particle count at each resampling.
     kld_epsilon, kld_delta : float
@@ -85,6 +88,7 @@ class FilterConfig:
     alpha_fast: float = 0.5
     max_inject_fraction: float = 0.25
     inject_candidates: int = 8
+    global_oversample: int = 10
     kld: bool = False
     kld_epsilon: float = 0.05
     kld_delta: float = 0.01
@@ -107,6 +111,8 @@ class FilterConfig:
         if not 0 <= self.max_inject_fraction <= 1:
             raise ValueError(
                 f"max_inject_fraction must be in [0, 1], got {self.max_inject_fraction}")
+        if not 1 <= self.global_oversample <= 100:
+            raise ValueError(f"global_oversample must be in [1, 100], got {self.global_oversample}")
         if self.inject_candidates < 1:
             raise ValueError(f"inject_candidates must be >= 1, got {self.inject_candidates}")
         if not 1 <= self.n_min <= self.n_max:
@@ -261,8 +267,9 @@ class ParticleFilter:
 
     # -- initialization
     def reset_global(self) -> None:
-        """Uniform over the free space (global localization)."""
-        n = self.config.n_particles
+        """Uniform over the free space (global localization), ``global_oversample`` times
+        ``n_particles`` until the first resampling."""
+        n = self.config.n_particles * self.config.global_oversample
         self.poses = init_global(self.tables, n, self.rng)
         self.log_w = np.full(n, -math.log(n))
         self.log_w_slow = self.log_w_fast = -np.inf
@@ -326,7 +333,7 @@ class ParticleFilter:
             direction_observable=bool(meas is not None and meas.direction_observable),
             updated=meas is not None, model="none" if meas is None else meas.model)
         if meas is not None and ess < cfg.resample_ess_fraction * poses.shape[0]:
-            n_out = kld_count(poses, cfg) if cfg.kld else poses.shape[0]
+            n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
             if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
