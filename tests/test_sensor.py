@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from localization.sensor import (
+    Model,
     SensorConfig,
     SensorTables,
     build_tables,
@@ -47,7 +48,7 @@ def _random_poses(n: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("model", ["correlation", "range"])
-def test_kernel_matches_numpy_twin(tables: SensorTables, heat_map: HeatMap, model: str) -> None:
+def test_kernel_matches_numpy_twin(tables: SensorTables, heat_map: HeatMap, model: Model) -> None:
     m = prepare_measurement(heat_map, dataclasses.replace(tables.config, model=model))
     poses = _random_poses(500, 1)
     a, b = score_poses(tables, m, poses), score_poses_numpy(tables, m, poses)
