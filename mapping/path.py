@@ -81,6 +81,20 @@ class Trajectory:
     hold_s: float = 0.0
     name: str = ""
 
+    def __post_init__(self) -> None:
+        arrays = (self.s0_m, self.x0_m, self.y0_m, self.theta0_rad, self.kappa_1_m)
+        k = self.s0_m.shape
+        if len(k) != 1 or k[0] < 1 or any(a.shape != k for a in arrays):
+            raise ValueError("s0_m, x0_m, y0_m, theta0_rad, kappa_1_m must share a shape (K >= 1,)")
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            raise ValueError("trajectory primitives must be finite")
+        if self.s0_m[0] != 0.0 or np.any(np.diff(self.s0_m) < 0):
+            raise ValueError("s0_m must start at 0 and not decrease")
+        if not (math.isfinite(self.cruise_speed_m_s) and self.cruise_speed_m_s >= 0):
+            raise ValueError(f"cruise_speed_m_s must be >= 0, got {self.cruise_speed_m_s}")
+        for a in arrays:  # a frozen trajectory: its arrays are read-only too
+            a.flags.writeable = False
+
     # ---- scalar facts ------------------------------------------------------------------
     @property
     def duration_s(self) -> float:
@@ -333,7 +347,11 @@ def _biarc(b: _Builder, p0: FloatArray, t0: FloatArray, theta0: float,
     a = 2.0 * (1.0 - float(t0 @ t1))
     bb = float(v @ tsum)
     c = float(v @ v)
-    d = c / (bb + math.sqrt(bb * bb + a * c))  # stable root of a d^2 + 2 b d - c = 0
+    denom = bb + math.sqrt(max(bb * bb + a * c, 0.0))
+    if not denom > 0:
+        raise ValueError("points_m gives a spline that turns back on itself between samples; "
+                         "spread the points more evenly")
+    d = c / denom  # stable root of a d^2 + 2 b d - c = 0
     joint = 0.5 * (p0 + d * t0 + p1 - d * t1)
     theta = _arc_to(b, p0, theta0, joint)
     return _arc_to(b, joint, theta, p1)

@@ -307,3 +307,12 @@ def test_kernel_matches_numpy_twin_when_stationary() -> None:
     t = np.linspace(-2.0, 5.0, 29)
     for got, want in zip(tr.position_velocity(t), position_velocity_numpy(tr, t), strict=True):
         np.testing.assert_array_equal(got, want)
+
+
+def test_trajectory_arrays_are_read_only() -> None:
+    tr = builtin_path("paper-b")
+    with pytest.raises(ValueError, match="read-only"):
+        tr.kappa_1_m[0] = 1.0
+    with pytest.raises(ValueError, match="share a shape"):
+        Trajectory(s0_m=np.zeros(2), x0_m=np.zeros(1), y0_m=np.zeros(2), theta0_rad=np.zeros(2),
+                   kappa_1_m=np.zeros(2), total_length_m=1.0, cruise_speed_m_s=0.1)
