@@ -21,6 +21,7 @@ from mapping.simulate.ism import (
     path_table,
     plan_stretch,
     prepare_scene,
+    render_reference,
     render_stretch,
     retarded_delay_scalar,
     simulate_stretch,
@@ -34,7 +35,7 @@ C = 340.0
 def _scene(segments: list, reflection: list[float] | None = None, name: str = "test") -> Scene:
     walls = []
     for i, (a, b) in enumerate(segments):
-        wall = {"name": f"w{i}", "start": list(a), "end": list(b)}
+        wall: dict[str, object] = {"name": f"w{i}", "start": list(a), "end": list(b)}
         if reflection is not None:
             wall["reflection"] = reflection[i]
         walls.append(wall)
@@ -46,7 +47,9 @@ def _line(start: tuple[float, float], heading: float, speed: float, length: floa
     return polyline_path([start, end], speed_m_s=speed, name="line")
 
 
-def _fine_delay(window: np.ndarray, start: int, config: SonarConfig, up: int = 32) -> np.ndarray:
+def _fine_delay(
+    window: np.ndarray, start: int, config: SonarConfig, up: int = 32
+) -> tuple[np.ndarray, np.ndarray]:
     """Envelope of the circular cross-correlation of one received period against the
     transmitted period, upsampled ``up`` times; returns (lags in samples, envelope).
 
@@ -382,6 +385,7 @@ def test_run_fields_and_metadata():
     assert np.allclose(run.pose, traj.pose(mids))
     assert np.allclose(run.speed_m_s, traj.speed_m_s(mids))
     assert np.allclose(run.yaw_rate_rad_s, traj.yaw_rate_rad_s(mids))
+    assert run.scene is not None
     assert Scene.from_json(run.scene).segments().shape == scene.segments().shape
     assert run.meta["engine"] == "ism" and run.meta["path"] == "paper-b"
     assert run.meta["order"] == 2 and run.meta["spreading"] == "3d" and run.meta["seed"] == 0
@@ -433,3 +437,38 @@ def test_heat_map_at_point_a_peaks_at_the_paper_walls_and_corner():
     assert level(2.0, 4.0) > 0.5 and level(4.5, 2.0) > 0.5 and level(4.5, 4.0) > 0.3
     # nothing where there is no wall: straight ahead at 1.5 m, sideways at 1.4 m
     assert level(x + 1.06, y + 1.06) < 0.1 and level(1.0, 3.0) < 0.1
+
+
+@pytest.mark.parametrize("spreading", ["3d", "2d"])
+def test_fast_engine_equals_the_per_sample_reference_loop(spreading):
+    scene, traj = builtin_scene("paper"), builtin_path("paper-b")
+    engine = IsmConfig(order=2, spreading=spreading)
+    start, n = 9 * CFG1.block_samples + 123, 300
+    prepared = prepare_scene(scene, traj, CFG1, engine, start / CFG1.fs_hz, start / CFG1.fs_hz)
+    plan = plan_stretch(prepared, traj, CFG1, engine, start, n)
+    assert np.all(plan.gain == plan.gain[:, :1])  # no path appears here (no fades)
+    fast = render_stretch(plan, CFG1, engine)
+    slow = render_reference(prepared, traj, CFG1, engine, start, n)
+    assert np.max(np.abs(fast - slow)) < 1e-8 * np.max(np.abs(slow))
+
+
+def test_cli_simulate_writes_a_run_file(tmp_path):
+    from mapping.runfile import read_run
+    from service.cli import main
+
+    config = tmp_path / "sonar.json"
+    config.write_text(json.dumps({"repetitions": 1}))
+    out = tmp_path / "run.npz"
+    code = main(["simulate", "--scene", "builtin:paper", "--path", "paper-a", "--blocks", "3",
+                 "--order", "2", "--snr-db", "30", "--seed", "4", "--config", str(config),
+                 "--out", str(out)])
+    assert code == 0
+    run = read_run(out)
+    assert run.n_blocks == 3 and run.meta["engine"] == "ism" and run.meta["seed"] == 4
+    mids = (np.arange(3) + 0.5) * CFG1.block_s
+    assert np.allclose(run.pose, builtin_path("paper-a").pose(mids))
+    assert Scene.from_json(run.scene or "").name == "paper"
+    assert main(["simulate", "--scene", "builtin:paper", "--path", "paper-a", "--engine", "nope",
+                 "--out", str(out)]) == 2
+    assert main(["simulate", "--scene", "builtin:paper", "--path", "paper-a", "--blocks", "0",
+                 "--out", str(out)]) == 2

@@ -28,7 +28,9 @@ def _ramp(f: float, half: float) -> float:
 @numba.njit(**NUMBA_FLAGS)
 def _table_value(table: np.ndarray, up: int, fine: int, pos: float) -> float:
     """4-point Lagrange interpolation of the periodic oversampled table at ``pos`` samples."""
-    u = (pos * up) % fine
+    u = pos * up
+    if u < 0.0 or u >= fine:
+        u = u % fine
     i = math.floor(u)
     f = u - i
     k = int(i) + 2
@@ -120,7 +122,10 @@ def _render(
                 + h01 * tau[i, kt + 1]
                 + h11 * tau_step_s * dtau[i, kt + 1]
             )
-            amp = (c * d) ** (-spread_power)
+            if spread_power == 1.0:
+                amp = 1.0 / (c * d)
+            else:
+                amp = (c * d) ** (-spread_power)
             pos = ph - d * fs
             if half_taps > 0:
                 v = _sinc_value(period, half_taps, pos)

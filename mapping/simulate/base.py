@@ -25,7 +25,8 @@ FloatArray = NDArray[np.float64]
 class SceneLike(Protocol):
     """Wall segments and their reflection coefficients."""
 
-    name: str
+    @property
+    def name(self) -> str: ...
 
     def segments(self) -> FloatArray: ...
 
@@ -37,7 +38,8 @@ class SceneLike(Protocol):
 class TrajectoryLike(Protocol):
     """A trajectory: pose and velocity at any time (constant velocity outside its span)."""
 
-    name: str
+    @property
+    def name(self) -> str: ...
 
     @property
     def duration_s(self) -> float: ...

@@ -543,6 +543,39 @@ def _signal_numpy(pos: FloatArray, config: SonarConfig, engine: IsmConfig) -> Fl
     return acc
 
 
+def render_reference(
+    prepared: PreparedScene,
+    trajectory: TrajectoryLike,
+    config: SonarConfig,
+    engine: IsmConfig,
+    start_sample: int,
+    n_samples: int,
+) -> FloatArray:
+    """Straightforward per-sample loop: the slow reference for benchmarks and tests.
+
+    For every sample: trace validity at the robot's position then, for every valid path,
+    solve the retarded delay by Newton to convergence and evaluate the signal. No grids,
+    no interpolation of the delay, no fades (validity switches abruptly).
+    """
+    fs, c = config.fs_hz, config.sound_speed_m_s
+    power = spreading_power(engine.spreading)
+    out = np.zeros(n_samples)
+    images = prepared.images
+    for n in range(n_samples):
+        absn = start_sample + n
+        t = absn / fs
+        trace = trace_images(images, prepared.segments, prepared.reflection,
+                             trajectory.position(np.array([t])))
+        gains = path_gains(trace, prepared, engine.spreading)[:, 0]
+        acc = 0.0
+        for i in np.flatnonzero(gains):
+            tau = retarded_delay_scalar(images.A[i], images.b[i], trajectory, t, c)
+            pos = np.array([float(absn % config.period_samples) - tau * fs])
+            acc += gains[i] * (c * tau) ** (-power) * float(_signal_numpy(pos, config, engine)[0])
+        out[n] = acc
+    return out
+
+
 def path_table(
     plan: StretchPlan,
     prepared: PreparedScene,
