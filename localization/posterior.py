@@ -91,13 +91,20 @@ def compose(poses: FloatArray, offset: FloatArray) -> FloatArray:
     return out
 
 
+def invert(offset: FloatArray) -> FloatArray:
+    """The inverse pose change: ``compose(compose(p, o), invert(o)) == p``."""
+    c, s = math.cos(offset[2]), math.sin(offset[2])
+    return np.array([-c * offset[0] - s * offset[1], s * offset[0] - c * offset[1], -offset[2]])
+
+
 def window_offsets(
-    speed_m_s: FloatArray, yaw_rate_rad_s: FloatArray, block_s: float
+    speed_m_s: FloatArray, yaw_rate_rad_s: FloatArray, block_s: float, anchor: int = 0
 ) -> FloatArray:
-    """Offsets (K, 3) of the midpoint poses of K consecutive blocks from the first one.
+    """Offsets (K, 3) of the midpoint poses of K consecutive blocks from block ``anchor``.
 
     Between midpoints k-1 and k the robot drives the second half of block k-1 and the first
-    half of block k, each at that block's odometry. Row 0 is zero.
+    half of block k, each at that block's odometry. Row ``anchor`` is zero; ``anchor=0``
+    parametrizes the window by its first pose, ``anchor=K-1`` by its last (the filter's).
     """
     v = np.asarray(speed_m_s, dtype=np.float64)
     w = np.asarray(yaw_rate_rad_s, dtype=np.float64)
@@ -108,12 +115,17 @@ def window_offsets(
         )
     if not block_s > 0:
         raise ValueError(f"block_s must be > 0, got {block_s}")
+    if not 0 <= anchor < v.size:
+        raise ValueError(f"anchor must be in 0..{v.size - 1}, got {anchor}")
     out = np.zeros((v.size, NDIM))
     pose = np.zeros((1, NDIM))
     for k in range(1, v.size):
         pose = compose(pose, arc_offset(v[k - 1], w[k - 1], 0.5 * block_s))
         pose = compose(pose, arc_offset(v[k], w[k], 0.5 * block_s))
         out[k] = pose[0]
+    if anchor:
+        base = invert(out[anchor])[None, :]
+        out = np.array([compose(base, o)[0] for o in out])
     return out
 
 
@@ -159,6 +171,7 @@ def sensor_window_log_likelihood(
     speed_m_s: FloatArray,
     yaw_rate_rad_s: FloatArray,
     block_s: float,
+    anchor: int = 0,
 ) -> LogLikelihood:
     """The window log-likelihood of issue 6's sensor model (tempered, floored, both mirrors).
 
@@ -173,12 +186,15 @@ def sensor_window_log_likelihood(
         The blocks' odometry.
     block_s : float
         Block duration (``SonarConfig.block_s``).
+    anchor : int
+        Which block's pose is the parameter (see :func:`window_offsets`).
     """
     if len(heat_maps) < 1:
         raise ValueError("heat_maps must hold >= 1 block, got 0")
     measurements = [prepare_measurement(hm, tables.config) for hm in heat_maps]
     funcs = [_bind_sensor(tables, m) for m in measurements]
-    return window_log_likelihood(funcs, window_offsets(speed_m_s, yaw_rate_rad_s, block_s))
+    return window_log_likelihood(funcs, window_offsets(speed_m_s, yaw_rate_rad_s, block_s,
+                                                       anchor))
 
 
 def _bind_sensor(tables: SensorTables, measurement: Any) -> LogLikelihood:
@@ -1151,19 +1167,20 @@ def check_block_range(start: int, stop: int, n_blocks: int) -> None:
 
 
 def window_from_run(
-    run: Run, start: int, stop: int, tables: SensorTables
+    run: Run, start: int, stop: int, tables: SensorTables, anchor: int = 0
 ) -> tuple[LogLikelihood, FloatArray]:
-    """Window log-likelihood of blocks ``start..stop-1`` of a run, and the first block's pose.
+    """Window log-likelihood of blocks ``start..stop-1`` of a run, and the anchor's true pose.
 
     Heat maps come from :func:`mapping.heatmap.heatmap_of_run` (paper eq. 1), odometry from
-    the run. The pose (3,) is the tracked pose of block ``start`` (NaN where untracked).
+    the run; the parameter is the pose of block ``start + anchor``, whose tracked pose (3,)
+    is returned too (NaN where untracked).
     """
     check_block_range(start, stop, run.n_blocks)
     heat_maps = [heatmap_of_run(run, k) for k in range(start, stop)]
     loglik = sensor_window_log_likelihood(
         tables, heat_maps, run.speed_m_s[start:stop], run.yaw_rate_rad_s[start:stop],
-        run.config.block_s)
-    return loglik, np.asarray(run.pose[start], dtype=np.float64)
+        run.config.block_s, anchor)
+    return loglik, np.asarray(run.pose[start + anchor], dtype=np.float64)
 
 
 def result_arrays(result: PosteriorResult) -> dict[str, FloatArray]:

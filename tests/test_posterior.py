@@ -314,3 +314,17 @@ def test_snooker_move_samples_the_right_variance(snooker: str, low: float, high:
     sampler.run_mcmc(emcee.State(p0, random_state=np.random.RandomState(0).get_state()), 1500)
     ratio = np.diag(np.cov(sampler.get_chain(discard=200, flat=True).T)) / np.diag(cov)
     assert np.all((ratio > low) & (ratio < high)), ratio
+
+
+def test_window_offsets_anchor_rebases_on_any_block() -> None:
+    v, w = np.array([0.1, 0.12, 0.1, 0.08]), np.array([0.0, 0.2, -0.1, 0.3])
+    first = post.window_offsets(v, w, 1.0)
+    start = np.array([[1.0, 2.0, 0.4]])
+    poses = np.array([post.compose(start, o)[0] for o in first])
+    for anchor in range(4):
+        rel = post.window_offsets(v, w, 1.0, anchor=anchor)
+        np.testing.assert_allclose(rel[anchor], 0.0, atol=1e-15)
+        again = np.array([post.compose(poses[anchor][None, :], o)[0] for o in rel])
+        np.testing.assert_allclose(again, poses, atol=1e-12)
+    with pytest.raises(ValueError, match="anchor"):
+        post.window_offsets(v, w, 1.0, anchor=4)
