@@ -1,0 +1,122 @@
+"""The real tracker: a block through :func:`mapping.heatmap.doppler_heatmap` into a filter
+from ``localization``. Conversions only; every number comes from those packages.
+
+One :class:`~localization.sensor.SensorTables` per map is built on first use and shared by
+all sessions on that map (read-only), rebuilt when the map file changes.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from localization.estimate import PoseEstimate
+from localization.particle_filter import FilterConfig, ParticleFilter
+from localization.sensor import SensorConfig, SensorTables, build_tables, validate_block
+from mapping.heatmap import HeatMap, doppler_heatmap
+from mapping.signal import SonarConfig
+from service.engine import BlockInput, EstimateOut, FilterSpec
+from service.mapstore import MapStore, map_config
+
+
+def estimate_out(est: PoseEstimate) -> EstimateOut:
+    """``localization`` estimate -> plain values."""
+
+    def mat(a: NDArray[np.float64]) -> tuple[tuple[float, float, float], ...]:
+        return tuple((float(r[0]), float(r[1]), float(r[2])) for r in np.asarray(a))
+
+    return EstimateOut(
+        pose=(float(est.pose[0]), float(est.pose[1]), float(est.pose[2])),
+        covariance=mat(est.cov),
+        modes=tuple((float(m.mean[0]), float(m.mean[1]), float(m.mean[2]), float(m.weight))
+                    for m in est.modes),
+        ess=float(est.ess), converged=bool(est.converged),
+        direction_observable=bool(est.direction_observable),
+        covariance_all=mat(est.cov_all),
+        extra={"model": est.model, "updated": bool(est.updated)},
+    )
+
+
+def block_heatmap(block: BlockInput, config: SonarConfig) -> HeatMap | None:
+    """Heat map of a block (``None`` for an empty block: predict only).
+
+    The block is bare (no neighbour samples: the next block does not exist yet); reads past
+    its edges see zeros, which :func:`~mapping.heatmap.doppler_heatmap` documents as < 0.1 %
+    of the peak.
+    """
+    if block.samples.size == 0:
+        return None
+    validate_block(block.samples, config.block_samples)
+    return doppler_heatmap(block.samples, block.speed_m_s, config, workers=1)
+
+
+class PFTracker:
+    """A :class:`~localization.particle_filter.ParticleFilter` behind the Tracker protocol."""
+
+    def __init__(self, pf: ParticleFilter, tables: SensorTables, config: SonarConfig) -> None:
+        self.pf, self.tables, self.config = pf, tables, config
+
+    def update(self, block: BlockInput) -> EstimateOut:
+        hm = block_heatmap(block, self.config)
+        est = self.pf.step(hm, block.speed_m_s, block.yaw_rate_rad_s,
+                           block.dt_s)
+        return estimate_out(est)
+
+    def reinit_global(self) -> None:
+        self.pf.reset_global()
+
+    def state_dict(self) -> dict[str, Any]:
+        return dict(self.pf.state_dict())
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.pf = ParticleFilter.from_state_dict(state, self.tables)
+
+    def particles(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        w = np.exp(self.pf.log_w - self.pf.log_w.max())
+        return self.pf.poses.copy(), w / w.sum()
+
+
+class LocalizationFactory:
+    """Trackers on the maps of a :class:`~service.mapstore.MapStore`.
+
+    Parameters
+    ----------
+    maps : MapStore
+    sensor : SensorConfig, optional
+        Sensor model shared by all sessions (default: ``localization``'s defaults).
+    """
+
+    def __init__(self, maps: MapStore, sensor: SensorConfig | None = None) -> None:
+        self.maps = maps
+        self.sensor = sensor or SensorConfig()
+        self._tables: dict[str, tuple[int, SensorTables, SonarConfig]] = {}
+        self._lock = threading.Lock()
+
+    def tables(self, map_id: str) -> tuple[SensorTables, SonarConfig]:
+        """Lookup tables and sonar config of ``map_id`` (cached per loaded map object)."""
+        wallmap = self.maps.get(map_id)
+        with self._lock:
+            hit = self._tables.get(map_id)
+            if hit is None or hit[0] != id(wallmap):
+                hit = (id(wallmap), build_tables(wallmap, self.sensor), map_config(wallmap))
+                self._tables[map_id] = hit
+            return hit[1], hit[2]
+
+    def create(self, map_id: str, spec: FilterSpec) -> PFTracker:
+        if spec.kind != "pf":
+            raise ValueError(f"filter must be 'pf' (the grid filter is not available), "
+                             f"got {spec.kind!r}")
+        tables, config = self.tables(map_id)
+        rng = np.random.default_rng(spec.seed)
+        pose = None if spec.initial_pose is None else np.asarray(spec.initial_pose)
+        cov = None if spec.initial_covariance is None else np.asarray(spec.initial_covariance)
+        pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles), rng, pose, cov)
+        return PFTracker(pf, tables, config)
+
+    def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> PFTracker:
+        tables, config = self.tables(map_id)
+        return PFTracker(ParticleFilter.from_state_dict(state, tables), tables, config)
+

@@ -1,0 +1,302 @@
+"""``/sessions``: live localization sessions and the block stream that drives them.
+
+Filter updates are CPU work: handlers are plain ``def`` (FastAPI's threadpool) or, where the
+raw body must be read first, ``async`` handlers that hand the update to the threadpool
+explicitly. One lock per session serializes its updates; different sessions run in parallel.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+import secrets
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
+from numpy.typing import NDArray
+from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
+
+from mapping.signal import SonarConfig
+from service.deps import get_app_settings, get_maps, get_sessions
+from service.engine import BlockInput, EstimateOut, FilterSpec, wrap_angle
+from service.errors import ClientError, validation_response
+from service.mapstore import MapStore
+from service.schemas import (
+    MAX_SEQ,
+    MAX_SPEED_M_S,
+    MAX_YAW_RATE_RAD_S,
+    BlockJSON,
+    ErrorBody,
+    Estimate,
+    Mode,
+    Particles,
+    Pose2D,
+    SessionCreate,
+    SessionInfo,
+)
+from service.sessions import Session, SessionStore
+from service.settings import Settings
+
+router = APIRouter(tags=["sessions"])
+
+SessionIdPath = Annotated[str, Path(max_length=64, description="session id")]
+Store = Annotated[SessionStore, Depends(get_sessions)]
+_E = {"model": ErrorBody}
+
+
+# ---- conversions --------------------------------------------------------------------------
+def estimate_model(session_id: str, seq: int | None, est: EstimateOut) -> Estimate:
+    """Core estimate -> response model (yaw wrapped to (-pi, pi])."""
+
+    def pose(x: float, y: float, yaw: float) -> Pose2D:
+        return Pose2D.model_construct(x=float(x), y=float(y), yaw=wrap_angle(yaw))
+
+    return Estimate(
+        session_id=session_id, seq=seq, pose=pose(*est.pose),
+        covariance=[list(r) for r in est.covariance],
+        covariance_ros=est.covariance_ros(),
+        covariance_all=None if est.covariance_all is None else [list(r)
+                                                                 for r in est.covariance_all],
+        modes=[Mode(pose=pose(m[0], m[1], m[2]), weight=float(m[3])) for m in est.modes],
+        ess=float(est.ess), converged=bool(est.converged),
+        direction_observable=bool(est.direction_observable),
+        processing_ms=float(est.processing_ms),
+    )
+
+
+def session_info(store: SessionStore, s: Session) -> SessionInfo:
+    return SessionInfo(
+        id=s.id, map_id=s.map_id, filter=s.spec.kind,  # type: ignore[arg-type]
+        particles=s.spec.particles, seed=s.spec.seed, created_at=s.created_at,
+        last_active_at=s.last_active_at, expires_in_s=store.expires_in_s(s),
+        last_seq=s.last_seq, n_updates=s.n_updates,
+        estimate=None if s.estimate is None else estimate_model(s.id, s.last_seq, s.estimate),
+    )
+
+
+# ---- session lifecycle --------------------------------------------------------------------
+@router.post("/sessions", status_code=201, response_model=SessionInfo,
+             responses={422: _E, 429: _E, 503: _E})
+def create_session(
+    req: SessionCreate, response: Response, store: Store,
+    maps: Annotated[MapStore, Depends(get_maps)],
+    cfg: Annotated[Settings, Depends(get_app_settings)],
+) -> SessionInfo:
+    """Start a filter on a map, from a pose with covariance or globally."""
+    if req.particles > cfg.max_particles:
+        raise ClientError(422, "validation", f"particles {req.particles} over the cap",
+                          "particles", f"10 <= particles <= {cfg.max_particles}")
+    _require_map(maps, req.map_id)
+    seed = req.seed if req.seed is not None else secrets.randbits(63)
+    pose = None if req.initial_pose is None else (req.initial_pose.x, req.initial_pose.y,
+                                                   wrap_angle(req.initial_pose.yaw))
+    cov = req.initial_covariance
+    if pose is not None and cov is None:
+        cov = [[0.1**2, 0, 0], [0, 0.1**2, 0], [0, 0, math.radians(10) ** 2]]
+    spec = FilterSpec(kind=req.filter, particles=req.particles, seed=seed, initial_pose=pose,
+                      initial_covariance=None if cov is None else tuple(tuple(r) for r in cov))
+    try:
+        s = store.create(req.map_id, spec)
+    except ValueError as exc:  # the filter refused the parameters (e.g. pose off the map)
+        raise ClientError(422, "validation", str(exc), _field_of(exc), None) from None
+    response.headers["Location"] = f"/sessions/{s.id}"
+    return session_info(store, s)
+
+
+def _require_map(maps: MapStore, map_id: str) -> None:
+    from service.routers.maps import DEFAULT_MAP_ID
+
+    if maps.exists(map_id):
+        return
+    if map_id == DEFAULT_MAP_ID:
+        raise ClientError(503, "unavailable", "the default map is still being built",
+                          "map_id", None, headers={"Retry-After": "30"})
+    raise ClientError(422, "validation", f"no map {map_id!r}", "map_id",
+                      f"one of {maps.ids()}")
+
+
+def _field_of(exc: ValueError) -> str | None:
+    text = str(exc)
+    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id"):
+        if name in text:
+            return name
+    return None
+
+
+@router.get("/sessions/{session_id}", response_model=SessionInfo, responses={404: _E})
+def get_session(session_id: SessionIdPath, store: Store) -> SessionInfo:
+    """The session and its last estimate."""
+    s = store.get(session_id)
+    with s.lock:
+        store.touch(s)
+        return session_info(store, s)
+
+
+@router.delete("/sessions/{session_id}", status_code=204, responses={404: _E})
+def delete_session(session_id: SessionIdPath, store: Store) -> Response:
+    """End a session and delete its checkpoint."""
+    store.delete(session_id)
+    return Response(status_code=204)
+
+
+@router.post("/sessions/{session_id}/global", response_model=SessionInfo, responses={404: _E})
+def reinit_global(session_id: SessionIdPath, store: Store) -> SessionInfo:
+    """Re-initialize the filter uniformly over the map (e.g. after a kidnapping)."""
+    s = store.reinit_global(session_id)
+    with s.lock:
+        return session_info(store, s)
+
+
+@router.get("/sessions/{session_id}/particles", response_model=Particles,
+            responses={404: _E, 409: _E})
+def get_particles(
+    session_id: SessionIdPath, store: Store,
+    max_: Annotated[int, Query(alias="max", ge=1, le=20_000)] = 500,
+) -> Particles:
+    """Up to ``max`` particles (every k-th, in storage order) with their weights."""
+    s = store.get(session_id)
+    with s.lock:
+        store.touch(s)
+        got = s.tracker.particles()
+    if got is None:
+        raise ClientError(409, "conflict", f"filter {s.spec.kind!r} has no particles",
+                          "session_id", "a session with filter 'pf'")
+    poses, weights = got
+    n = poses.shape[0]
+    idx = np.unique(np.linspace(0, n - 1, min(max_, n)).round().astype(np.int64))
+    return Particles(
+        n_total=n, x=poses[idx, 0].tolist(), y=poses[idx, 1].tolist(),
+        yaw=[wrap_angle(a) for a in poses[idx, 2]], weight=weights[idx].tolist(),
+    )
+
+
+# ---- blocks -------------------------------------------------------------------------------
+_BLOCK_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "description": (
+            "One block of B microphone samples (B = the map's SonarConfig.block_samples, "
+            "40920 by default). Either raw little-endian samples (application/octet-stream; "
+            "encoding float32 or int16 (full scale 32768); seq, fs_hz, speed_m_s and "
+            "yaw_rate_rad_s as query parameters or X-Omnisonar-* headers) or JSON with "
+            "base64 samples."
+        ),
+        "content": {
+            "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            "application/json": {"schema": BlockJSON.model_json_schema()},
+        },
+    }
+}
+
+
+@router.post("/sessions/{session_id}/blocks", response_model=Estimate,
+             openapi_extra=_BLOCK_BODY,
+             responses={404: _E, 409: _E, 413: _E, 415: _E, 422: _E})
+async def post_block(
+    session_id: SessionIdPath,
+    request: Request,
+    store: Store,
+    seq: Annotated[int | None, Query(ge=0, le=MAX_SEQ)] = None,
+    fs_hz: Annotated[float | None, Query(gt=0, allow_inf_nan=False)] = None,
+    speed_m_s: Annotated[float | None, Query(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S,
+                                             allow_inf_nan=False)] = None,
+    yaw_rate_rad_s: Annotated[float | None, Query(ge=-MAX_YAW_RATE_RAD_S,
+                                                  le=MAX_YAW_RATE_RAD_S,
+                                                  allow_inf_nan=False)] = None,
+    encoding: Annotated[str | None, Query(pattern="^(float32|int16)$")] = None,
+    x_omnisonar_seq: Annotated[int | None, Header(ge=0, le=MAX_SEQ)] = None,
+    x_omnisonar_fs_hz: Annotated[float | None, Header(gt=0, allow_inf_nan=False)] = None,
+    x_omnisonar_speed_m_s: Annotated[float | None, Header(
+        ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False)] = None,
+    x_omnisonar_yaw_rate_rad_s: Annotated[float | None, Header(
+        ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S, allow_inf_nan=False)] = None,
+    x_omnisonar_encoding: Annotated[str | None, Header(pattern="^(float32|int16)$")] = None,
+) -> Estimate:
+    """Feed one block (with its odometry) to the session's filter; returns the estimate.
+
+    A ``seq`` not greater than the last committed one is answered 409 and changes nothing;
+    any other rejected block (wrong length, NaN, fs mismatch) is 422 and changes nothing.
+    """
+    s = store.get(session_id)  # 404 before reading a large body
+    body = await request.body()
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype == "application/json":
+        try:
+            blk = BlockJSON.model_validate_json(body)
+        except ValidationError as exc:
+            return validation_response(exc.errors())  # type: ignore[return-value]
+        raw, enc = _b64(blk.samples_b64), str(blk.encoding)
+        params = (blk.seq, blk.fs_hz, blk.speed_m_s, blk.yaw_rate_rad_s)
+    elif ctype in ("application/octet-stream", ""):
+        raw = body
+        enc = encoding or x_omnisonar_encoding or "float32"
+        params = (
+            _need("seq", seq, x_omnisonar_seq), _need("fs_hz", fs_hz, x_omnisonar_fs_hz),
+            _need("speed_m_s", speed_m_s, x_omnisonar_speed_m_s),
+            _first(yaw_rate_rad_s, x_omnisonar_yaw_rate_rad_s, 0.0),
+        )
+    else:
+        raise ClientError(415, "unsupported_media_type", f"content type {ctype!r}",
+                          "content-type", "application/octet-stream or application/json")
+    samples = _decode(raw, enc, s.tracker.config)
+    block = BlockInput(seq=int(params[0]), samples=samples, fs_hz=float(params[1]),
+                       speed_m_s=float(params[2]), yaw_rate_rad_s=float(params[3]))
+    _check_fs(block.fs_hz, s.tracker.config)
+    try:
+        s = await run_in_threadpool(store.update, session_id, block)
+    except ValueError as exc:  # the core rejected the block; the session is unchanged
+        raise ClientError(422, "validation", f"block rejected: {exc}", "samples",
+                          None) from None
+    assert s.estimate is not None
+    return estimate_model(s.id, s.last_seq, s.estimate)
+
+
+def _first(a: Any, b: Any, default: Any) -> Any:
+    return a if a is not None else (b if b is not None else default)
+
+
+def _need(name: str, query: Any, header: Any) -> Any:
+    v = _first(query, header, None)
+    if v is None:
+        raise ClientError(422, "validation", f"{name} is required (query or header)", name,
+                          f"query ?{name}= or header X-Omnisonar-{name.replace('_', '-')}")
+    return v
+
+
+def _b64(text: str) -> bytes:
+    try:
+        return base64.b64decode(text, validate=True)
+    except (binascii.Error, ValueError):
+        raise ClientError(422, "validation", "samples_b64 is not valid base64", "samples_b64",
+                          "RFC 4648 base64 of the little-endian samples") from None
+
+
+def _decode(raw: bytes, encoding: str, config: SonarConfig) -> NDArray[np.float64]:
+    """Little-endian float32 / int16 bytes -> (B,) float64; 422 on wrong length or NaN.
+
+    An empty body is allowed and means "no sonar block": the filter predicts only.
+    """
+    dtype, scale = (np.dtype("<f4"), 1.0) if encoding == "float32" else (np.dtype("<i2"),
+                                                                        1 / 32768)
+    b = config.block_samples
+    if len(raw) == 0:
+        return np.zeros(0)  # no block (sonar dropout): the filter predicts only
+    if len(raw) != b * dtype.itemsize:
+        raise ClientError(422, "validation",
+                          f"block has {len(raw)} bytes = {len(raw) / dtype.itemsize:g} "
+                          f"{encoding} samples", "samples",
+                          f"exactly {b} {encoding} samples ({b * dtype.itemsize} bytes)")
+    x = np.frombuffer(raw, dtype=dtype).astype(np.float64) * scale
+    if not np.all(np.isfinite(x)):
+        raise ClientError(422, "validation", "block contains NaN or inf", "samples",
+                          "finite values")
+    return x
+
+
+def _check_fs(fs_hz: float, config: SonarConfig) -> None:
+    if not math.isclose(fs_hz, config.fs_hz, rel_tol=1e-9):
+        raise ClientError(422, "validation", f"fs_hz {fs_hz:g} differs from the map's sonar",
+                          "fs_hz", f"{config.fs_hz:g} (no resampling)")

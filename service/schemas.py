@@ -1,0 +1,225 @@
+"""Request and response models of the HTTP API (pydantic lives at the edges).
+
+Frames and units follow ROS REP-103: x forward/east, y left/north, yaw counter-clockwise from
+the x axis in radians, wrapped to (-pi, pi]; positions in metres in the map frame. The
+6x6 covariance is ROS ``geometry_msgs/PoseWithCovariance`` order (x, y, z, roll, pitch, yaw),
+row-major, with the planar entries filled and z/roll/pitch zero, as AMCL publishes it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+#: Identifiers of maps, sessions and run files: safe as file names.
+ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+MapId = Annotated[str, Field(pattern=ID_PATTERN, description="map identifier")]
+
+#: Largest sequence number (fits a JSON double exactly).
+MAX_SEQ = 2**53 - 1
+#: Odometry limits accepted for one block.
+MAX_SPEED_M_S = 5.0
+MAX_YAW_RATE_RAD_S = 10.0
+MAX_COORD_M = 1.0e4
+
+#: Allowed values of the main request fields, quoted in 422 bodies.
+FIELD_RANGES = {
+    "seq": f"integer 0..{MAX_SEQ}, greater than the last committed seq",
+    "fs_hz": "the map's sampling rate (40000 for Table 1)",
+    "speed_m_s": f"finite, -{MAX_SPEED_M_S} <= speed_m_s <= {MAX_SPEED_M_S}",
+    "yaw_rate_rad_s": f"finite, -{MAX_YAW_RATE_RAD_S} <= yaw_rate_rad_s <= {MAX_YAW_RATE_RAD_S}",
+    "encoding": "float32 or int16",
+    "x": f"finite, |x| <= {MAX_COORD_M:g} m",
+    "y": f"finite, |y| <= {MAX_COORD_M:g} m",
+    "yaw": "finite, |yaw| <= 2 pi",
+    "particles": "integer >= 10 (and <= OMNISONAR_MAX_PARTICLES)",
+    "max": "integer 1..20000",
+}
+
+Coord = Annotated[float, Field(ge=-MAX_COORD_M, le=MAX_COORD_M, allow_inf_nan=False)]
+Yaw = Annotated[float, Field(ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Pose2D(_Strict):
+    """Planar pose in the map frame (REP-103)."""
+
+    x: Coord = Field(description="metres")
+    y: Coord = Field(description="metres")
+    yaw: Yaw = Field(description="radians, counter-clockwise from x; output in (-pi, pi]")
+
+
+class ErrorBody(BaseModel):
+    """Every 4xx/5xx answer: a code, a message and, for bad input, the field and its range."""
+
+    error: str
+    detail: str
+    field: str | None = None
+    allowed: str | None = None
+    errors: list[dict[str, object]] | None = None
+
+
+# ---- maps ---------------------------------------------------------------------------------
+class MapInfo(BaseModel):
+    """Metadata of one stored map (no G values; see ``/maps/{id}/image.png``)."""
+
+    id: str
+    shape: tuple[int, int] = Field(description="(ny, nx) cells")
+    origin_m: tuple[float, float] = Field(description="centre of cell [0, 0]")
+    resolution_m: float
+    extent_m: tuple[float, float, float, float] = Field(description="xmin, xmax, ymin, ymax")
+    method: str
+    params: dict[str, object]
+    provenance: dict[str, object]
+    sonar: dict[str, object]
+    size_bytes: int
+
+
+class MapList(BaseModel):
+    maps: list[MapInfo]
+    building: list[str] = Field(description="map ids whose build job is still running")
+
+
+class BuildRequest(_Strict):
+    """Batch build of a map from run files already in the server's runs directory."""
+
+    runs: list[Annotated[str, Field(pattern=ID_PATTERN)]] = Field(
+        min_length=1, max_length=1000, description="run file names in OMNISONAR_RUNS_DIR"
+    )
+    map_id: MapId
+    method: str = Field("paper", pattern=r"^[a-z0-9_-]{1,32}$")
+    overwrite: bool = False
+
+
+class Job(BaseModel):
+    """A background map build."""
+
+    id: str
+    kind: Literal["build", "default-map"]
+    map_id: str
+    status: Literal["queued", "running", "done", "failed"]
+    progress: float = Field(ge=0.0, le=1.0)
+    message: str = ""
+    created_at: float
+    finished_at: float | None = None
+
+
+# ---- sessions -----------------------------------------------------------------------------
+class SessionCreate(_Strict):
+    """``POST /sessions``: a filter on a map, tracked from a pose or global."""
+
+    map_id: MapId
+    filter: Literal["pf", "grid"] = "pf"
+    particles: int = Field(2000, ge=10, description="particle count (pf); capped by settings")
+    seed: int | None = Field(None, ge=0, le=2**63 - 1)
+    initial_pose: Pose2D | None = Field(None, description="omit (or global=true) for global")
+    initial_covariance: list[list[float]] | None = Field(
+        None, description="3x3 covariance of (x, y, yaw) in m^2, m*rad, rad^2"
+    )
+    global_: bool = Field(False, alias="global", description="uniform over the mapped region")
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    @field_validator("initial_covariance")
+    @classmethod
+    def _covariance(cls, v: list[list[float]] | None) -> list[list[float]] | None:
+        if v is None:
+            return v
+        return check_covariance(v)
+
+    @model_validator(mode="after")
+    def _init_mode(self) -> SessionCreate:
+        if self.global_ and self.initial_pose is not None:
+            raise ValueError("give either initial_pose (tracked) or global=true, not both")
+        if self.initial_pose is None and self.initial_covariance is not None:
+            raise ValueError("initial_covariance needs initial_pose")
+        return self
+
+    @property
+    def is_global(self) -> bool:
+        return self.initial_pose is None
+
+
+def check_covariance(v: list[list[float]]) -> list[list[float]]:
+    """Validate a 3x3 symmetric positive semi-definite covariance given as nested lists."""
+    if len(v) != 3 or any(len(row) != 3 for row in v):
+        raise ValueError("initial_covariance must be 3x3")
+    a = np.asarray(v, dtype=np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("initial_covariance must be finite")
+    if np.abs(a).max() > 1e6:
+        raise ValueError("initial_covariance entries must be within +-1e6")
+    if not np.allclose(a, a.T, rtol=1e-9, atol=1e-12):
+        raise ValueError("initial_covariance must be symmetric")
+    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
+        raise ValueError("initial_covariance must be positive semi-definite")
+    return [[float(x) for x in row] for row in a]
+
+
+class Mode(BaseModel):
+    pose: Pose2D
+    weight: float
+
+
+class Estimate(BaseModel):
+    """The filter's answer after one block."""
+
+    session_id: str
+    seq: int | None = Field(description="sequence number of the last committed block")
+    frame_id: str = "map"
+    pose: Pose2D
+    covariance: list[list[float]] = Field(description="3x3 covariance of (x, y, yaw), best mode")
+    covariance_ros: list[float] = Field(
+        description="36 values, row-major 6x6 over (x, y, z, roll, pitch, yaw)"
+    )
+    covariance_all: list[list[float]] | None = Field(
+        None, description="3x3 covariance of the whole particle set"
+    )
+    modes: list[Mode]
+    ess: float = Field(description="effective sample size")
+    converged: bool
+    direction_observable: bool
+    processing_ms: float = Field(description="server time for this update")
+
+
+class SessionInfo(BaseModel):
+    id: str
+    map_id: str
+    filter: Literal["pf", "grid"]
+    particles: int
+    seed: int
+    created_at: float
+    last_active_at: float
+    expires_in_s: float
+    last_seq: int | None
+    n_updates: int
+    estimate: Estimate | None
+
+
+class BlockJSON(_Strict):
+    """A block as JSON: the samples base64-encoded, the odometry alongside."""
+
+    seq: int = Field(ge=0, le=MAX_SEQ, description="strictly increasing per session")
+    fs_hz: float = Field(gt=0, allow_inf_nan=False, description="must equal the map's fs")
+    speed_m_s: float = Field(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False)
+    yaw_rate_rad_s: float = Field(
+        0.0, ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S, allow_inf_nan=False
+    )
+    encoding: Literal["float32", "int16"] = "float32"
+    samples_b64: str = Field(description="little-endian samples, base64 (RFC 4648)")
+
+
+class Particles(BaseModel):
+    """A downsampled view of the particle set, for display."""
+
+    n_total: int
+    x: list[float]
+    y: list[float]
+    yaw: list[float]
+    weight: list[float]

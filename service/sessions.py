@@ -1,0 +1,351 @@
+"""Live localization sessions: one filter each, a lock each, checkpointed after every update.
+
+The store holds sessions in memory and mirrors each to ``<sessions_dir>/<id>.npz`` (written
+atomically: temporary name, fsync, rename) after creation and after every committed block,
+so a killed server restarts with every session at its last committed block. A block is
+committed only when the filter update succeeded *and* its checkpoint is on disk; on any
+failure the in-memory filter is restored from the snapshot taken before the update, so a
+rejected request leaves the session exactly as it was.
+
+Nothing here computes a pose: the :class:`~service.engine.Tracker` behind each session calls
+``mapping`` and ``localization``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mapping.runfile import atomic_savez
+from service.engine import (
+    BlockInput,
+    EstimateOut,
+    FilterSpec,
+    Tracker,
+    TrackerFactory,
+    block_dt_s,
+)
+
+SESSION_FORMAT = "omnisonar-session-1"
+
+
+class SessionNotFound(KeyError):
+    """No session with this id (404)."""
+
+
+class SessionConflict(Exception):
+    """A sequence number that is not after the last committed one (409)."""
+
+    def __init__(self, seq: int, last_seq: int | None) -> None:
+        super().__init__(f"seq {seq} is not after the last committed seq {last_seq}")
+        self.seq = seq
+        self.last_seq = last_seq
+
+
+class SessionLimit(Exception):
+    """The cap on concurrent sessions is reached (429)."""
+
+
+@dataclass
+class Session:
+    """One live filter and its bookkeeping; mutate only while holding ``lock``."""
+
+    id: str
+    map_id: str
+    spec: FilterSpec
+    tracker: Tracker
+    created_at: float
+    last_active_at: float
+    last_seq: int | None = None
+    n_updates: int = 0
+    estimate: EstimateOut | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def meta(self) -> dict[str, Any]:
+        """JSON-able bookkeeping (everything but the filter state)."""
+        return {
+            "id": self.id,
+            "map_id": self.map_id,
+            "spec": self.spec.to_dict(),
+            "created_at": self.created_at,
+            "last_active_at": self.last_active_at,
+            "last_seq": self.last_seq,
+            "n_updates": self.n_updates,
+            "estimate": None if self.estimate is None else self.estimate.to_dict(),
+        }
+
+
+# ---- checkpoint encoding ------------------------------------------------------------------
+def flatten_state(state: dict[str, Any]) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    """Split a nested state dict into ``.npz`` arrays and a JSON-able remainder.
+
+    Arrays go under ``"state/<path>"`` keys; everything else stays in the returned dict with
+    each array replaced by the marker ``{"__array__": "<key>"}``.
+    """
+    arrays: dict[str, NDArray[Any]] = {}
+
+    def walk(obj: Any, path: str) -> Any:
+        if isinstance(obj, np.ndarray):
+            key = f"state/{path}"
+            arrays[key] = obj
+            return {"__array__": key}
+        if isinstance(obj, dict):
+            return {str(k): walk(v, f"{path}.{k}" if path else str(k)) for k, v in obj.items()}
+        if isinstance(obj, list | tuple):
+            return [walk(v, f"{path}.{i}") for i, v in enumerate(obj)]
+        if isinstance(obj, np.generic):
+            return obj.item()
+        return obj
+
+    return arrays, walk(state, "")
+
+
+def unflatten_state(tree: Any, arrays: dict[str, NDArray[Any]]) -> Any:
+    """Inverse of :func:`flatten_state`."""
+    if isinstance(tree, dict):
+        if set(tree) == {"__array__"}:
+            return arrays[tree["__array__"]]
+        return {k: unflatten_state(v, arrays) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [unflatten_state(v, arrays) for v in tree]
+    return tree
+
+
+def write_checkpoint(path: Path, session: Session) -> None:
+    """Write ``session`` (bookkeeping + filter state) atomically to ``path``."""
+    arrays, tree = flatten_state(session.tracker.state_dict())
+    payload: dict[str, Any] = {
+        "format": np.array(SESSION_FORMAT),
+        "meta": np.array(json.dumps(session.meta())),
+        "state": np.array(json.dumps(tree)),
+        **arrays,
+    }
+    atomic_savez(path, payload)
+
+
+def read_checkpoint(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(meta, state)`` of a checkpoint; ``ValueError`` if the file is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            data = {k: npz[k] for k in npz.files}
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable session checkpoint ({exc})") from exc
+    if str(data.get("format", "")) != SESSION_FORMAT:
+        raise ValueError(f"{path}: key 'format' must be {SESSION_FORMAT!r}")
+    meta = json.loads(str(data["meta"]))
+    state = unflatten_state(json.loads(str(data["state"])), data)
+    return meta, state
+
+
+# ---- the store ----------------------------------------------------------------------------
+class SessionStore:
+    """Sessions by id, with a cap, idle expiry and checkpoints.
+
+    Parameters
+    ----------
+    directory : Path or None
+        Where checkpoints live; None keeps sessions in memory only.
+    max_sessions : int
+        Cap on concurrent sessions.
+    idle_s : float
+        A session untouched for this long is expired by :meth:`expire`.
+    factory : TrackerFactory
+        Builds and restores trackers (the link to ``localization``).
+    clock : callable
+        Wall clock in seconds (injectable for tests).
+    """
+
+    def __init__(
+        self,
+        directory: Path | None,
+        max_sessions: int,
+        idle_s: float,
+        factory: TrackerFactory,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.directory = directory
+        self.max_sessions = max_sessions
+        self.idle_s = idle_s
+        self.factory = factory
+        self.clock = clock
+        self._sessions: dict[str, Session] = {}
+        self._guard = threading.Lock()  # protects the dict, never held during compute
+        if directory is not None:
+            directory.mkdir(parents=True, exist_ok=True)
+
+    # -- lookup -------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self._sessions)
+
+    def ids(self) -> list[str]:
+        with self._guard:
+            return sorted(self._sessions)
+
+    def get(self, session_id: str) -> Session:
+        with self._guard:
+            try:
+                return self._sessions[session_id]
+            except KeyError:
+                raise SessionNotFound(session_id) from None
+
+    def expires_in_s(self, session: Session) -> float:
+        return max(0.0, session.last_active_at + self.idle_s - self.clock())
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def create(self, map_id: str, spec: FilterSpec) -> Session:
+        """Build a tracker on ``map_id`` per ``spec`` and register it (checkpointed)."""
+        self.expire()
+        with self._guard:
+            if len(self._sessions) >= self.max_sessions:
+                raise SessionLimit(
+                    f"{len(self._sessions)} sessions open; max_sessions is {self.max_sessions}"
+                )
+        tracker = self.factory.create(map_id, spec)
+        now = self.clock()
+        session = Session(
+            id=secrets.token_hex(8), map_id=map_id, spec=spec, tracker=tracker,
+            created_at=now, last_active_at=now,
+        )
+        with self._guard:
+            if len(self._sessions) >= self.max_sessions:
+                raise SessionLimit(f"max_sessions is {self.max_sessions}")
+            self._sessions[session.id] = session
+        with session.lock:
+            self._checkpoint(session)
+        return session
+
+    def delete(self, session_id: str) -> None:
+        session = self.get(session_id)
+        with session.lock, self._guard:
+            self._sessions.pop(session_id, None)
+            self._remove_file(session_id)
+
+    def expire(self) -> list[str]:
+        """Drop sessions idle for longer than ``idle_s``; returns their ids."""
+        now = self.clock()
+        with self._guard:
+            stale = [s for s in self._sessions.values() if now - s.last_active_at > self.idle_s]
+        gone = []
+        for s in stale:
+            if not s.lock.acquire(blocking=False):
+                continue  # busy right now, so not idle
+            try:
+                with self._guard:
+                    if now - s.last_active_at > self.idle_s:
+                        self._sessions.pop(s.id, None)
+                        self._remove_file(s.id)
+                        gone.append(s.id)
+            finally:
+                s.lock.release()
+        return gone
+
+    # -- updates ------------------------------------------------------------------------
+    def update(self, session_id: str, block: BlockInput) -> Session:
+        """Feed one block; commit (state + checkpoint) or leave the session untouched.
+
+        Raises
+        ------
+        SessionNotFound, SessionConflict, ValueError
+            Unknown id; ``seq`` not after the last committed one; a block the filter rejects.
+        """
+        session = self.get(session_id)
+        with session.lock:
+            if session.last_seq is not None and block.seq <= session.last_seq:
+                raise SessionConflict(block.seq, session.last_seq)
+            self._transact(session, lambda: self._apply(session, block))
+            return session
+
+    def reinit_global(self, session_id: str) -> Session:
+        """Re-initialize the session's filter globally (kidnapped robot)."""
+        session = self.get(session_id)
+        with session.lock:
+            self._transact(session, lambda: self._reinit(session))
+            return session
+
+    def touch(self, session: Session) -> None:
+        session.last_active_at = self.clock()
+
+    def _apply(self, session: Session, block: BlockInput) -> None:
+        t0 = time.perf_counter()
+        dt = block_dt_s(block.seq, session.last_seq, session.tracker.config.block_s)
+        est = session.tracker.update(replace(block, dt_s=dt))
+        est = est.with_processing_ms(1e3 * (time.perf_counter() - t0))
+        session.estimate = est
+        session.last_seq = block.seq
+        session.n_updates += 1
+
+    def _reinit(self, session: Session) -> None:
+        session.tracker.reinit_global()
+        session.estimate = None
+
+    def _transact(self, session: Session, change: Callable[[], None]) -> None:
+        """Run ``change`` then checkpoint; on any exception restore the session fully."""
+        before_state = session.tracker.state_dict()
+        before = (session.estimate, session.last_seq, session.n_updates, session.last_active_at)
+        try:
+            change()
+            session.last_active_at = self.clock()
+            self._checkpoint(session)
+        except BaseException:
+            session.tracker.load_state_dict(before_state)
+            session.estimate, session.last_seq, session.n_updates, session.last_active_at = before
+            raise
+
+    # -- persistence --------------------------------------------------------------------
+    def _path(self, session_id: str) -> Path | None:
+        return None if self.directory is None else self.directory / f"{session_id}.npz"
+
+    def _checkpoint(self, session: Session) -> None:
+        path = self._path(session.id)
+        if path is not None:
+            write_checkpoint(path, session)
+
+    def _remove_file(self, session_id: str) -> None:
+        path = self._path(session_id)
+        if path is not None and path.exists():
+            os.unlink(path)
+
+    def reload(self) -> tuple[list[str], list[str]]:
+        """Restore every checkpoint in the directory; returns (loaded ids, skipped files).
+
+        Checkpoints that cannot be read or whose map is gone are skipped (and kept on disk).
+        """
+        loaded: list[str] = []
+        skipped: list[str] = []
+        if self.directory is None:
+            return loaded, skipped
+        for path in sorted(self.directory.glob("*.npz")):
+            try:
+                meta, state = read_checkpoint(path)
+                spec = FilterSpec.from_dict(meta["spec"])
+                tracker = self.factory.restore(meta["map_id"], spec, state)
+                est = meta.get("estimate")
+                session = Session(
+                    id=meta["id"], map_id=meta["map_id"], spec=spec, tracker=tracker,
+                    created_at=float(meta["created_at"]),
+                    last_active_at=max(float(meta["last_active_at"]), self.clock()),
+                    last_seq=meta["last_seq"], n_updates=int(meta["n_updates"]),
+                    estimate=None if est is None else EstimateOut.from_dict(est),
+                )
+            except (ValueError, KeyError, TypeError) as exc:
+                skipped.append(f"{path.name}: {exc}")
+                continue
+            with self._guard:
+                self._sessions[session.id] = session
+            loaded.append(session.id)
+        return loaded, skipped
+
+
+def spec_as_dict(spec: FilterSpec) -> dict[str, Any]:
+    """JSON-able form of a spec (helper for responses)."""
+    return asdict(spec)
