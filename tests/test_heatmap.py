@@ -315,3 +315,39 @@ def test_bad_input_raises_value_error_naming_it(kwargs: dict, match: str) -> Non
     block, speed, config = args.pop("block"), args.pop("speed_m_s"), args.pop("config")
     with pytest.raises(ValueError, match=match):
         doppler_heatmap(block, speed, config, **args)  # type: ignore[arg-type]
+
+
+# ---- CLI edges (omnisonar heatmap / demo) -----------------------------------------------------
+def test_cli_heatmap_writes_documented_npz_and_png(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from mapping.runfile import write_run
+    from service.cli import main
+
+    tmp = Path(str(tmp_path))
+    run = synthetic_run(SMALL, Wall(1.0, math.radians(60.0)), 0.5, n_blocks=2)
+    write_run(tmp / "run.npz", run)
+    out, png = tmp / "hm.npz", tmp / "hm.png"
+    assert main(["heatmap", str(tmp / "run.npz"), "--block", "1", "--out", str(out),
+                 "--png", str(png)]) == 0
+    with np.load(out) as npz:
+        assert set(npz.files) == {"H", "angles_rad", "ranges_m", "speed_m_s",
+                                  "direction_observable"}
+        np.testing.assert_array_equal(npz["H"], heatmap_of_run(run, 1).H)
+        assert bool(npz["direction_observable"]) and float(npz["speed_m_s"]) == 0.5
+    assert png.stat().st_size > 0
+    assert main(["heatmap", str(tmp / "run.npz"), "--block", "5"]) == 2
+
+
+def test_cli_demo_prints_range_and_angle_against_truth(
+    tmp_path: object, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pathlib import Path
+
+    from service.cli import main
+
+    out = Path(str(tmp_path)) / "demo"
+    assert main(["demo", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "detected: range" in text and "truth:" in text
+    assert (out / "heatmap.png").stat().st_size > 0
