@@ -222,7 +222,7 @@ def cartesian_heatmap(
 
 
 def accumulate(
-    heatmaps: Iterable[HeatMap], poses: FloatArray, params: GridParams | None = None,
+    heatmaps: Iterable[HeatMap | None], poses: FloatArray, params: GridParams | None = None,
     extent: GridExtent | None = None, engine: str = "numba",
 ) -> tuple[FloatArray, GridExtent, dict[str, int]]:
     """Sum of the blocks' Cartesian heat maps over the run, eq. 5.
