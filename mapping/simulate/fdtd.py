@@ -52,7 +52,7 @@ IntArray = NDArray[np.int64]
 _COURANT_LIMIT = 1.0 / math.sqrt(2.0)
 _FLUSH = 1e-30
 _RESAMPLE_HALF_WIDTH = 96
-_TABLE_UPSAMPLE = 16
+_TABLE_UPSAMPLE = 32
 
 
 # ---- configuration ------------------------------------------------------------------------
@@ -590,7 +590,7 @@ def source_signal(t_s: ArrayLike, sonar: SonarConfig, fdtd: FdtdConfig,
     """Injected per-step pressure increment g(t) (``filtered=False``: the plain band-limited
     transmitted signal, equal to ``mapping.signal.transmitted_at``).
 
-    Periodic band-limited interpolation (cubic Lagrange on a 16x table) of the filtered
+    Periodic band-limited interpolation (cubic Lagrange on a 32x table) of the filtered
     period spectrum.
     """
     table = _source_table(sonar, fdtd, filtered)
