@@ -283,10 +283,9 @@ def test_shapes_and_invariants(speed: float, left: int, right: int, bank: str,
     assert hm.angles_rad.shape == (n_dirs,) and np.all(np.diff(hm.angles_rad) > 0)
     assert hm.angles_rad[0] == 0.0 and hm.angles_rad[-1] == pytest.approx(math.pi)
     np.testing.assert_allclose(hm.ranges_m, np.arange(p) * SMALL.range_per_sample_m)
-    # linearity: scaling the input scales the map
-    np.testing.assert_allclose(
-        doppler_heatmap(3 * x, speed, SMALL, left=left, right=right, bank=bank).H,  # type: ignore[arg-type]
-        np.asarray(3 * hm.H, dtype=float), rtol=1e-9, atol=1e-12)
+    # linearity: scaling the input scales the map (last FFT in single precision)
+    scaled = doppler_heatmap(3 * x, speed, SMALL, left=left, right=right, bank=bank)  # type: ignore[arg-type]
+    assert np.max(np.abs(scaled.H - 3 * hm.H)) <= 1e-5 * 3 * hm.H.max()
 
 
 # ---- bad input --------------------------------------------------------------------------------
