@@ -29,8 +29,9 @@ class ClusterConfig:
     ----------
     cell_m, heading_bins : float, int
         Bin size of the clustering grid (position, number of heading bins over 2 pi).
-    min_bin_weight : float
-        Bins lighter than this belong to no mode.
+    min_bin_weight, rel_bin_weight : float
+        Bins lighter than ``min_bin_weight`` or than ``rel_bin_weight`` times the heaviest
+        bin belong to no mode (so a thin bridge of particles does not join two modes).
     max_modes : int
         Modes reported.
     converged_weight, converged_std_m, converged_std_rad : float
@@ -41,6 +42,7 @@ class ClusterConfig:
     cell_m: float = 0.25
     heading_bins: int = 12
     min_bin_weight: float = 1e-3
+    rel_bin_weight: float = 0.02
     max_modes: int = 5
     converged_weight: float = 0.9
     converged_std_m: float = 0.15
@@ -143,7 +145,8 @@ def find_modes(poses: FloatArray, weights: FloatArray, config: ClusterConfig) ->
     shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1, config.heading_bins)
     flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], hb), shape)
     bin_w = np.bincount(flat, weights=w, minlength=int(np.prod(shape))).reshape(shape)
-    labels, n = ndimage.label(bin_w >= config.min_bin_weight, structure=np.ones((3, 3, 3)))
+    level = max(config.min_bin_weight, config.rel_bin_weight * float(bin_w.max()))
+    labels, n = ndimage.label(bin_w >= level, structure=np.ones((3, 3, 3)))
     labels = _merge_wrap(labels, n)
     particle_label = labels.ravel()[flat]
     modes = []

@@ -338,11 +338,11 @@ class ParticleFilter:
             p_inject = 0.0
             if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
                 p_inject = max(0.0, 1.0 - math.exp(min(fast - slow, 0.0)))
-            n_inject = int(self.rng.binomial(n_out, min(p_inject, cfg.max_inject_fraction)))
+            p_inject = min(p_inject, cfg.max_inject_fraction)
+            n_inject = int(self.rng.binomial(n_out, p_inject)) if p_inject > 0 else 0
             if n_inject:
                 poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
                                self.rng)
-                slow = fast = float(np.logaddexp(slow, fast) - math.log(2.0))
         self.poses, self.log_w = poses, log_w
         self.log_w_slow, self.log_w_fast = slow, fast
         self.n_steps += 1

@@ -20,11 +20,11 @@ from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
 
-#: A 4 m wide trapezoid room (2.4 m high on the right, 3.2 m on the left) with a stub
-#: wall: no symmetry.
+#: A 4 m x 3 m room with its top-right corner cut at 45 deg and a stub wall hanging from
+#: the top: no symmetry.
 ASYMMETRIC_ROOM = np.array([
-    [[0.0, 0.0], [4.0, 0.0]], [[4.0, 0.0], [4.0, 2.4]], [[4.0, 2.4], [0.0, 3.2]],
-    [[0.0, 3.2], [0.0, 0.0]], [[2.8, 2.64], [2.8, 1.9]],
+    [[0.0, 0.0], [4.0, 0.0]], [[4.0, 0.0], [4.0, 1.6]], [[4.0, 1.6], [2.6, 3.0]],
+    [[2.6, 3.0], [0.0, 3.0]], [[0.0, 3.0], [0.0, 0.0]], [[1.0, 3.0], [1.0, 2.4]],
 ])
 
 #: A 6 m x 1.6 m corridor: symmetric under 180 deg rotation and both mirror axes.

@@ -1,0 +1,321 @@
+"""Tests of the particle filter: functions vs object, accuracy, failure modes, checkpoints.
+
+Inputs are independent of the simulation pipeline: a rasterized wall map and heat maps
+synthesized from the same wall segments by geometry (tests/_localization_helpers.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+
+import numpy as np
+import pytest
+
+from localization.estimate import circular_std, pose_error
+from localization.motion import wrap_angle
+from localization.particle_filter import (
+    FilterConfig,
+    ParticleFilter,
+    init_tracked,
+    predict,
+    resample,
+    weigh,
+)
+from localization.resampling import effective_sample_size
+from localization.sensor import (
+    SensorConfig,
+    SensorTables,
+    build_tables,
+    prepare_measurement,
+)
+from mapping.heatmap import HeatMap
+from tests._localization_helpers import (
+    ASYMMETRIC_ROOM,
+    CORRIDOR,
+    rasterize,
+    synthetic_heatmap,
+    trajectory,
+)
+
+DT = 1.023
+#: Curved path inside ASYMMETRIC_ROOM: straight, left arc, straight, left arc, straight.
+ODO = [(0.2, 0.0)] * 4 + [(0.2, 0.35)] * 5 + [(0.2, 0.0)] * 2 + [(0.2, 0.3)] * 6 + \
+    [(0.2, 0.0)] * 5
+START = np.array([0.8, 0.6, 0.0])
+TIGHT = np.diag([0.05**2, 0.05**2, math.radians(5) ** 2])
+#: Symmetric about y = 1.5 (an isosceles trapezoid): mirror images about the travel axis.
+MIRROR_ROOM = np.array([
+    [[0.0, 0.0], [5.0, 0.4]], [[5.0, 0.4], [5.0, 2.6]], [[5.0, 2.6], [0.0, 3.0]],
+    [[0.0, 3.0], [0.0, 0.0]],
+])
+
+
+@pytest.fixture(scope="module")
+def tables() -> SensorTables:
+    return build_tables(rasterize(ASYMMETRIC_ROOM), SensorConfig(max_range_m=4.5))
+
+
+@pytest.fixture(scope="module")
+def run() -> tuple[np.ndarray, list[HeatMap]]:
+    truth = trajectory(START, ODO, DT)
+    rng = np.random.default_rng(11)
+    return truth, [synthetic_heatmap(ASYMMETRIC_ROOM, p, 0.2, rng) for p in truth]
+
+
+def _odometry(k: int) -> tuple[float, float, float]:
+    return (*ODO[k - 1], DT) if k > 0 else (0.2, 0.0, 0.0)
+
+
+def _state_bytes(pf: ParticleFilter) -> dict[str, bytes]:
+    return {k: v.tobytes() for k, v in pf.state_dict().items()}
+
+
+def test_object_and_functions_agree(tables: SensorTables,
+                                    run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    truth, hms = run
+    cfg = FilterConfig(n_particles=400, augmented=False)
+    pf = ParticleFilter(tables, cfg, np.random.default_rng(5), pose=truth[0], cov=TIGHT)
+    rng = np.random.default_rng(5)
+    poses = init_tracked(truth[0], TIGHT, 400, rng)
+    log_w = np.full(400, -math.log(400))
+    resampled = 0
+    for k in range(6):
+        v, w, dt = _odometry(k)
+        pf.step(hms[k], v, w, dt)
+        poses = predict(poses, v, w, dt, cfg.motion, rng)
+        log_w, _ = weigh(log_w, poses, tables, prepare_measurement(hms[k], tables.config))
+        if effective_sample_size(log_w) < 0.5 * 400:
+            poses, log_w = resample(poses, log_w, rng)
+            resampled += 1
+        np.testing.assert_array_equal(pf.poses, poses)
+        np.testing.assert_array_equal(pf.log_w, log_w)
+    assert resampled > 0
+
+
+def test_tracking_accuracy(tables: SensorTables, run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    """Tracked start: position RMSE <= 3 cm and heading RMSE <= 3 deg over the run."""
+    truth, hms = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=1000), np.random.default_rng(1),
+                        pose=truth[0], cov=TIGHT)
+    errs = np.array([pose_error(pf.step(hms[k], *_odometry(k)).pose, truth[k])
+                     for k in range(len(truth))])
+    assert math.sqrt(np.mean(errs[:, 0] ** 2)) <= 0.03
+    assert math.degrees(math.sqrt(np.mean(errs[:, 1] ** 2))) <= 3.0
+
+
+def test_global_localization_converges(tables: SensorTables,
+                                       run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    """From a uniform start in the asymmetric room: within 5 cm / 5 deg and ``converged``
+    by block 12 (of 23) and staying there."""
+    truth, hms = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=1500), np.random.default_rng(2))
+    ests = [pf.step(hms[k], *_odometry(k)) for k in range(len(truth))]
+    for k in range(12, len(truth)):
+        e_pos, e_head = pose_error(ests[k].pose, truth[k])
+        assert e_pos <= 0.05 and e_head <= math.radians(5), k
+    assert sum(e.converged for e in ests[12:]) >= len(ests[12:]) - 2
+
+
+def test_state_dict_round_trip(tables: SensorTables,
+                               run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    """Checkpoint through np.savez (no pickle) and continue: identical to never stopping."""
+    truth, hms = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=300), np.random.default_rng(3))
+    for k in range(3):
+        pf.step(hms[k], *_odometry(k))
+    buf = io.BytesIO()
+    np.savez(buf, **pf.state_dict())
+    buf.seek(0)
+    with np.load(buf, allow_pickle=False) as npz:
+        clone = ParticleFilter.from_state_dict({k: npz[k] for k in npz.files}, tables)
+    for k in range(3, 6):
+        a, b = pf.step(hms[k], *_odometry(k)), clone.step(hms[k], *_odometry(k))
+        np.testing.assert_array_equal(a.pose, b.pose)
+    assert _state_bytes(pf) == _state_bytes(clone)
+    with pytest.raises(ValueError, match="format"):
+        ParticleFilter.from_state_dict({"format": np.array("nope")}, tables)
+
+
+def _bad(hm: HeatMap, kind: str) -> HeatMap:
+    if kind == "nan":
+        H = hm.H.copy()
+        H[3, 100] = np.nan
+        return dataclasses.replace(hm, H=H)
+    if kind == "zeros":
+        return dataclasses.replace(hm, H=np.zeros_like(hm.H))
+    if kind == "wrong_length":
+        return dataclasses.replace(hm, H=hm.H[:, :-7])
+    return dataclasses.replace(hm, angles_rad=hm.angles_rad[::-1].copy())
+
+
+@pytest.mark.parametrize("kind", ["nan", "zeros", "wrong_length", "bad_axis", "odometry"])
+def test_bad_block_rejected_state_unchanged(tables: SensorTables,
+                                            run: tuple[np.ndarray, list[HeatMap]],
+                                            kind: str) -> None:
+    truth, hms = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=200), np.random.default_rng(4),
+                        pose=truth[0], cov=TIGHT)
+    pf.step(hms[0], *_odometry(0))
+    before = _state_bytes(pf)
+    with pytest.raises(ValueError):
+        if kind == "odometry":
+            pf.step(hms[1], math.nan, 0.0, DT)
+        else:
+            pf.step(_bad(hms[1], kind), *_odometry(1))
+    assert _state_bytes(pf) == before
+    pf.step(hms[1], *_odometry(1))   # and it still works
+
+
+def test_silent_block_predicts_only(tables: SensorTables,
+                                    run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    truth, _ = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=200), np.random.default_rng(6),
+                        pose=truth[0], cov=TIGHT)
+    log_w, mean_x = pf.log_w.copy(), pf.poses[:, 0].mean()
+    est = pf.step(None, 0.2, 0.0, DT)
+    assert not est.updated and est.model == "none"
+    np.testing.assert_array_equal(pf.log_w, log_w)
+    assert pf.poses[:, 0].mean() - mean_x == pytest.approx(0.2 * DT, abs=0.01)
+
+
+def test_stationary_robot_never_invents_a_bearing(tables: SensorTables) -> None:
+    """10 blocks at speed 0: the heading spread does not shrink (>= 90 % of the start)."""
+    truth = np.array([1.5, 1.2, 0.7])
+    cov = np.diag([0.05**2, 0.05**2, math.radians(40) ** 2])
+    pf = ParticleFilter(tables, FilterConfig(n_particles=1000), np.random.default_rng(7),
+                        pose=truth, cov=cov)
+    start = circular_std(pf.poses[:, 2], np.exp(pf.log_w))
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        est = pf.step(synthetic_heatmap(ASYMMETRIC_ROOM, truth, 0.0, rng), 0.0, 0.0, DT)
+        assert not est.direction_observable and est.model == "range"
+    assert circular_std(pf.poses[:, 2], np.exp(pf.log_w)) >= 0.9 * start
+    assert pose_error(est.pose, truth)[0] <= 0.1
+
+
+def test_straight_path_keeps_mirror_modes_until_turn() -> None:
+    """Room symmetric about y = 1.5; driving straight along +x at y = 1.9 the mirror pose
+    at y = 1.1 explains every block equally: once the prior's middle has died out (block 4)
+    both modes hold 0.3-0.7 of the weight up to the turn (block 8). After the robot turns,
+    one mode (the truth) holds >= 0.9 within 6 blocks."""
+    tables = build_tables(rasterize(MIRROR_ROOM), SensorConfig(max_range_m=4.5))
+    odo = [(0.2, 0.0)] * 8 + [(0.2, 0.4)] * 6
+    truth = trajectory(np.array([0.8, 1.9, 0.0]), odo, DT)
+    rng = np.random.default_rng(9)
+    pf = ParticleFilter(tables, FilterConfig(n_particles=2000, augmented=False),
+                        np.random.default_rng(10), pose=np.array([0.8, 1.5, 0.0]),
+                        cov=np.diag([0.05**2, 0.35**2, math.radians(4) ** 2]))
+    ests = []
+    for k in range(len(truth)):
+        v, w = odo[k - 1] if k else (0.2, 0.0)
+        ests.append(pf.step(synthetic_heatmap(MIRROR_ROOM, truth[k], 0.2, rng), v, w,
+                            DT if k else 0.0))
+    for est, pose in zip(ests[4:9], truth[4:9], strict=True):
+        ys = sorted(m.mean[1] for m in est.modes[:2])
+        assert ys == pytest.approx([3.0 - pose[1], pose[1]], abs=0.1)
+        assert all(0.3 <= m.weight <= 0.7 for m in est.modes[:2])
+    last = ests[-1]
+    assert last.modes[0].weight >= 0.9
+    assert pose_error(last.pose, truth[-1])[0] <= 0.1
+
+
+def test_symmetric_scene_reports_symmetric_modes() -> None:
+    """Corridor (180 deg rotation symmetric): after global localization the two rotation
+    images are both reported as modes (each >= 0.15), and the best mode is right modulo
+    the symmetry (within 10 cm / 10 deg of one image)."""
+    tables = build_tables(rasterize(CORRIDOR), SensorConfig(max_range_m=4.5))
+    odo = [(0.2, 0.0)] * 3 + [(0.2, 0.25)] * 4 + [(0.2, -0.25)] * 4
+    truth = trajectory(np.array([1.2, 0.5, 0.0]), odo, DT)
+    rng = np.random.default_rng(12)
+    pf = ParticleFilter(tables, FilterConfig(n_particles=2000), np.random.default_rng(13))
+    for k in range(len(truth)):
+        v, w = odo[k - 1] if k else (0.2, 0.0)
+        est = pf.step(synthetic_heatmap(CORRIDOR, truth[k], 0.2, rng), v, w, DT if k else 0.0)
+    p = truth[-1]
+    images = [p, np.array([6.0 - p[0], 1.6 - p[1], float(wrap_angle(p[2] + np.pi))])]
+    for image in images:
+        near = [m for m in est.modes if pose_error(m.mean, image)[0] <= 0.1]
+        assert near and near[0].weight >= 0.15
+    assert min(pose_error(est.pose, im)[0] for im in images) <= 0.1
+    assert min(pose_error(est.pose, im)[1] for im in images) <= math.radians(10)
+
+
+@pytest.mark.parametrize("bias", [0.9, 1.1])
+def test_odometry_speed_bias_does_not_diverge(tables: SensorTables,
+                                              run: tuple[np.ndarray, list[HeatMap]],
+                                              bias: float) -> None:
+    """Speed off by +-10 %: stated degradation <= 6 cm RMSE (vs <= 3 cm), no divergence."""
+    truth, hms = run
+    pf = ParticleFilter(tables, FilterConfig(n_particles=1000), np.random.default_rng(14),
+                        pose=truth[0], cov=TIGHT)
+    errs = []
+    for k in range(len(truth)):
+        v, w, dt = _odometry(k)
+        errs.append(pose_error(pf.step(hms[k], bias * v, w, dt).pose, truth[k])[0])
+    assert math.sqrt(np.mean(np.square(errs))) <= 0.06
+    assert errs[-1] <= 0.1
+
+
+@pytest.mark.slow
+def test_kidnapping_recovered(tables: SensorTables) -> None:
+    """Teleport 2 m and -90 deg after 10 blocks: recovered (within 15 cm / 15 deg for the
+    rest of the run) within 12 blocks in >= 18 of 20 seeds (typically 5-8 blocks)."""
+    odo = [(0.2, 0.2 / 0.6)] * 26
+    before = trajectory(np.array([1.2, 0.7, 0.0]), odo[:10], DT)
+    p = before[-1]
+    jump = np.array([p[0] + 1.9, p[1] - 0.62, float(wrap_angle(p[2] - np.pi / 2))])
+    assert math.hypot(jump[0] - p[0], jump[1] - p[1]) == pytest.approx(2.0, abs=0.01)
+    after = trajectory(jump, odo[10:], DT)
+    truth = np.vstack([before, after[1:]])
+    recovered = 0
+    for seed in range(20):
+        rng = np.random.default_rng(100 + seed)
+        pf = ParticleFilter(tables, FilterConfig(n_particles=800), np.random.default_rng(seed),
+                            pose=truth[0], cov=TIGHT)
+        ok = []
+        for k in range(len(truth)):
+            v, w = odo[k - 1] if k else (0.2, 0.0)
+            est = pf.step(synthetic_heatmap(ASYMMETRIC_ROOM, truth[k], 0.2, rng), v, w,
+                          DT if k else 0.0)
+            e_pos, e_head = pose_error(est.pose, truth[k])
+            ok.append(e_pos <= 0.15 and e_head <= math.radians(15))
+        first_bad_after = [k for k in range(10, len(truth)) if not ok[k]]
+        if not first_bad_after or max(first_bad_after) < 10 + 12:
+            recovered += 1
+    assert recovered >= 18
+
+
+def test_many_particles_sharp_beta_no_underflow(tables: SensorTables,
+                                                run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    truth, hms = run
+    sharp = dataclasses.replace(tables, config=dataclasses.replace(tables.config, beta=1e4))
+    pf = ParticleFilter(sharp, FilterConfig(n_particles=100_000, global_oversample=1),
+                        np.random.default_rng(15))
+    for k in range(2):
+        est = pf.step(hms[k], *_odometry(k))
+        assert np.all(np.isfinite(pf.log_w))
+        assert np.exp(pf.log_w).sum() == pytest.approx(1.0)
+        assert est.ess >= 1.0 and np.all(np.isfinite(est.pose))
+
+
+def test_kld_adapts_particle_count(tables: SensorTables,
+                                   run: tuple[np.ndarray, list[HeatMap]]) -> None:
+    truth, hms = run
+    cfg = FilterConfig(n_particles=3000, kld=True, n_min=300, n_max=3000, augmented=False)
+    pf = ParticleFilter(tables, cfg, np.random.default_rng(16), pose=truth[0], cov=TIGHT)
+    counts = []
+    for k in range(8):
+        pf.step(hms[k], *_odometry(k))
+        counts.append(pf.n_particles)
+    assert min(counts) < 3000
+    assert all(300 <= c <= 3000 for c in counts)
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ValueError, match="n_particles"):
+        FilterConfig(n_particles=0)
+    with pytest.raises(ValueError, match="alpha_slow"):
+        FilterConfig(alpha_slow=0.5, alpha_fast=0.1)
+    assert FilterConfig.from_json(FilterConfig(n_particles=7).to_json()).n_particles == 7
