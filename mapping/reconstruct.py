@@ -177,8 +177,8 @@ def observations_from_heatmaps(
         else:
             Y.append(pool_heatmap(hm, bin_m, grid.radius_m, grid.floor))
             used.append(k)
-            spread = config is not None and params.doppler_spread
-            kappa.append(doppler_kappa(hm.speed_m_s, config) if spread else 0.0)
+            use = config is not None and params.doppler_spread
+            kappa.append(doppler_kappa(hm.speed_m_s, config) if use and config else 0.0)
             counts["blocks_used"] += 1
     n_dirs = Y[0].shape[0] if Y else 2
     n_bins = Y[0].shape[1] if Y else 1

@@ -18,6 +18,7 @@ import numpy as np  # noqa: E402
 from matplotlib.projections.polar import PolarAxes  # noqa: E402
 
 from mapping.heatmap import HeatMap, find_peak  # noqa: E402
+from mapping.wallmap import WallMap  # noqa: E402
 
 
 def write_heatmap_png(
@@ -66,3 +67,44 @@ def write_heatmap_png(
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def write_map_png(
+    path: Path,
+    wallmap: WallMap,
+    *,
+    segments: np.ndarray | None = None,
+    poses: np.ndarray | None = None,
+    title: str = "",
+    scale_percentile: float = 99.0,
+) -> Path:
+    """Write a wall map G as a PNG (scaled to its ``scale_percentile`` of the positive cells,
+    so retro-reflecting corners do not black out the walls), with the true walls and the
+    tracked poses overlaid when given. Returns ``path``."""
+    fig, ax = plt.subplots(figsize=(6.5, 6))
+    _draw_map(ax, wallmap, segments, poses, scale_percentile)
+    ax.set_title(title or f"wall map G ({wallmap.method})", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _draw_map(ax: plt.Axes, wallmap: WallMap, segments: np.ndarray | None,
+              poses: np.ndarray | None, scale_percentile: float = 99.0) -> None:
+    G = wallmap.G
+    pos = G[G > 0]
+    scale = float(np.percentile(pos, scale_percentile)) if pos.size else 1.0
+    im = ax.imshow(G / scale, origin="lower", extent=wallmap.extent_m, vmin=0, vmax=1,
+                   cmap="magma", interpolation="nearest")
+    if segments is not None:
+        for a, b in np.asarray(segments):
+            ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="cyan", lw=0.8, alpha=0.8)
+    if poses is not None:
+        ok = np.isfinite(np.asarray(poses)).all(axis=1)
+        ax.plot(poses[ok, 0], poses[ok, 1], ".", color="white", ms=2)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal")
+    plt.colorbar(im, ax=ax, shrink=0.8, label=f"G / p{scale_percentile:g}(G > 0)")
