@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import matplotlib
+import numba
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -120,7 +121,12 @@ def main() -> int:
     def shipped() -> np.ndarray:
         return doppler_heatmap(ext, SPEED, cfg, left=left, right=right).H
 
+    n_threads = numba.get_num_threads()
     ship_t = timed(shipped, 40)
+    numba.set_num_threads(1)
+    single_t = timed(lambda: doppler_heatmap(ext, SPEED, cfg, left=left, right=right,
+                                             workers=1), 40)
+    numba.set_num_threads(n_threads)
     ref_t = timed(lambda: reference_heatmap(ext, left, SPEED, cfg), 3)
     ship_err = err(shipped())
     ref_err = err(reference_heatmap(ext, left, SPEED, cfg))
@@ -144,12 +150,15 @@ def main() -> int:
                 "wall 2 m at 35 deg; errors are max |H - H_exact| / max H_exact",
         "command": "python benchmarks/heatmap.py",
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "numba_threads": int(os.environ.get("NUMBA_NUM_THREADS", "0")) or None,
+                    "numba_threads": n_threads,
+                    "numba_threading_layer": numba.threading_layer(),
                     "load_average_before": load_before, "load_average_after": load_after},
         "shipped": {"method": "spectral", "taps": 8, **ship_t, "max_error_of_peak": ship_err,
                     "ms_per_block_wall": 1e3 * ship_t["wall_median_s"],
                     "ms_per_block_cpu": 1e3 * ship_t["cpu_median_s"],
                     "real_time_factor_wall": block_s / ship_t["wall_median_s"]},
+        "shipped_one_thread": {**single_t, "ms_per_block_wall": 1e3 * single_t["wall_median_s"],
+                               "ms_per_block_cpu": 1e3 * single_t["cpu_median_s"]},
         "reference": {"method": "scipy.signal.resample per ratio + numpy FFT", **ref_t,
                       "max_error_of_peak": ref_err,
                       "ms_per_block_wall": 1e3 * ref_t["wall_median_s"],
@@ -165,6 +174,8 @@ def main() -> int:
     print(f"shipped:   {result['shipped']['ms_per_block_wall']:.2f} ms/block wall "
           f"({result['shipped']['ms_per_block_cpu']:.2f} ms CPU), real-time x"
           f"{result['shipped']['real_time_factor_wall']:.0f}, error {ship_err:.1e}")
+    print(f"shipped, 1 thread: {1e3 * single_t['wall_median_s']:.2f} ms/block wall "
+          f"({1e3 * single_t['cpu_median_s']:.2f} ms CPU)")
     print(f"reference: {result['reference']['ms_per_block_wall']:.1f} ms/block wall, "
           f"error {ref_err:.1e}")
     print(f"speed-up: x{result['speedup_wall']:.0f} wall, x{result['speedup_cpu']:.0f} CPU; "
