@@ -89,8 +89,10 @@ def predict(belief: FloatArray, speed_m_s: float, yaw_rate_rad_s: float, dt_s: f
     s1, st, s2 = motion.motion_std(rot1, trans, rot2, noise)
     sigma_xy = math.hypot(st, abs(trans) * s1) / res
     sigma_h = math.hypot(s1, s2) / dh
-    out = ndimage.gaussian_filter(out, (sigma_xy, sigma_xy, 0.0), mode="constant")
-    out = ndimage.gaussian_filter1d(out, sigma_h, axis=2, mode="wrap")
+    if sigma_xy > 1e-3:
+        out = ndimage.gaussian_filter(out, (sigma_xy, sigma_xy, 0.0), mode="constant")
+    if sigma_h > 1e-3:
+        out = ndimage.gaussian_filter1d(out, sigma_h, axis=2, mode="wrap")
     out *= tables.free_mask[:, :, None]
     total = out.sum()
     if total <= 0:

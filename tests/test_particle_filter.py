@@ -126,7 +126,7 @@ def test_state_dict_round_trip(tables: SensorTables,
     for k in range(3):
         pf.step(hms[k], *_odometry(k))
     buf = io.BytesIO()
-    np.savez(buf, **pf.state_dict())
+    np.savez(buf, **pf.state_dict())  # type: ignore[arg-type]
     buf.seek(0)
     with np.load(buf, allow_pickle=False) as npz:
         clone = ParticleFilter.from_state_dict({k: npz[k] for k in npz.files}, tables)
