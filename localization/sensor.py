@@ -384,7 +384,8 @@ def prepare_measurement(heat_map: HeatMap, config: SensorConfig) -> Measurement:
 
     The heat map's columns are averaged into the range bins and multiplied by
     ``r ** range_gain_exponent``. Correlation model: rows interpolated at ``|phi_j|`` (the
-    mirror fold) and the noise floor (the ``1 - keep_fraction`` quantile) removed. Range
+    mirror fold; ``pi - |phi_j|`` when reversing, since the heat map's angles are measured
+    from the direction of travel) and the noise floor (the ``1 - keep_fraction`` quantile) removed. Range
     model: the maximum over directions, zero mean and unit norm.
 
     Raises
@@ -407,6 +408,10 @@ def prepare_measurement(heat_map: HeatMap, config: SensorConfig) -> Measurement:
         return Measurement(model=model, direction_observable=directional, dense=m / norm,
                            idx=empty.astype(np.int64), val=empty, m_mean=0.0, m_norm=1.0)
     phi = np.abs(config.angles_rad)
+    if heat_map.speed_m_s < 0:
+        # reversing: the heat map's angles are measured from the direction of travel,
+        # heading + pi (mapping.heatmap.doppler_heatmap)
+        phi = np.pi - phi
     lo = np.clip(np.searchsorted(heat_map.angles_rad, phi) - 1, 0, binned.shape[0] - 2)
     a0, a1 = heat_map.angles_rad[lo], heat_map.angles_rad[lo + 1]
     t = np.clip((phi - a0) / (a1 - a0), 0.0, 1.0)

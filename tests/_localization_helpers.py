@@ -72,8 +72,8 @@ def synthetic_heatmap(
         foot = a + t * ab
         d = float(np.hypot(*(foot - p)))
         bearing = abs(float(wrap_angle(math.atan2(foot[1] - p[1], foot[0] - p[0]) - pose[2])))
-        if speed_m_s < 0:
-            bearing = abs(float(wrap_angle(bearing)))
+        if speed_m_s < 0:   # angles from the direction of travel, heading + pi
+            bearing = math.pi - bearing
         row = np.exp(-0.5 * ((np.cos(angles) - math.cos(bearing)) / sigma_cos) ** 2)
         if not observable:
             row = np.ones(n_dirs)

@@ -98,6 +98,16 @@ def test_best_pose_is_the_true_pose(tables: SensorTables, heat_map: HeatMap) -> 
     assert np.all(near < score_poses(tables, m, TRUTH[None])[0])
 
 
+def test_reversing_scores_best_at_the_true_heading(tables: SensorTables) -> None:
+    """Reversing: the heat map's angles are from the travel direction (heading + pi); the
+    true heading must still beat the flipped one."""
+    hm = synthetic_heatmap(ASYMMETRIC_ROOM, TRUTH, -0.2, np.random.default_rng(5))
+    m = prepare_measurement(hm, tables.config)
+    flipped = TRUTH + [0.0, 0.0, np.pi]
+    rho = score_poses(tables, m, np.stack([TRUTH, flipped]))
+    assert rho[0] > rho[1] + 0.05
+
+
 def test_measurement_is_mirror_symmetric(tables: SensorTables, heat_map: HeatMap) -> None:
     """The sensor cannot tell +phi from -phi: the unfolded measurement has that symmetry."""
     m = prepare_measurement(heat_map, tables.config)
