@@ -403,9 +403,10 @@ def doppler_heatmap(
     method : {"spectral", "direct"}
         How the block is resampled (both band-limited, both eq. 1):
         ``"direct"`` resamples in time with a Kaiser-windowed sinc polyphase interpolator of
-        ``taps`` taps (default 16) and folds the M periods; ``"spectral"`` (default, ~6x
-        faster) evaluates the same folded spectrum as a DFT at scaled frequencies with a
-        Kaiser-Bessel gridding kernel of ``taps`` taps (default 8) (see Notes).
+        ``taps`` taps (default 16) and folds the M periods; ``"spectral"`` (default, ~5x
+        faster, more accurate) evaluates the same folded spectrum as a DFT at scaled
+        frequencies with a Kaiser-Bessel gridding kernel of ``taps`` taps (default 8) (see
+        Notes).
     taps : int or None
         Interpolator length (even); None picks the method's default. ``method="direct",
         taps=2`` is linear interpolation (for comparison only: it loses ~3 dB at fc/fs = 1/4).
@@ -470,9 +471,12 @@ def doppler_heatmap(
     ``Omega_q = 2 pi q / (alpha P)`` and W the stretched read window: the resampling becomes
     a DFT of the *unresampled* block at slightly scaled frequencies. It is evaluated for all
     directions from one rfft of the deapodized block (length 2B) by Kaiser-Bessel gridding
-    (a type-2 non-uniform FFT, relative error ~1e-6 at 8 taps), plus exact sums over the
-    ~|1 - alpha| B / 2 samples by which W differs from the block at each end. No
-    interpolation in time, so no per-sample filter: O(B log B + N P taps).
+    (a type-2 non-uniform FFT, oversampling 2), plus sums over the ~|1 - alpha| B / 2
+    samples by which W differs from the block at each end (``_add_strip``). No interpolation
+    in time, so no per-sample filter: O(B log B + N P taps). Against eq. 1 applied to the
+    exactly resampled analytic echo the map differs by ~5e-5 of its peak (tested; the
+    16-tap direct method by ~6e-3). The final inverse FFT runs in single precision
+    (~2e-7 of the peak).
 
     **Range wrap.** The circular correlation repeats every P lags: the range axis spans
     ``[0, c L T_c / 2)`` = [0, 17.39 m) and an echo at range ``R`` appears at
