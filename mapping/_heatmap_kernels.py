@@ -181,10 +181,15 @@ def _add_strip(
     n_g = (n_q - 1) // coarse + 2
     t_re = np.empty(n_g)
     t_im = np.empty(n_g)
+    step = coarse * delta
+    sr_step = math.cos(step)
+    si_step = math.sin(step)
+    cr = 1.0
+    ci = 0.0
     for g in range(n_g):
-        w = g * coarse * delta
-        cr = math.cos(w)
-        ci = math.sin(w)
+        if g % 64 == 0:  # refresh the rotating phasor e^{i g step}
+            cr = math.cos(g * step)
+            ci = math.sin(g * step)
         pr = 1.0
         pi_ = 0.0
         sr = 0.0
@@ -195,6 +200,7 @@ def _add_strip(
             pr, pi_ = pr * cr - pi_ * ci, pr * ci + pi_ * cr
         t_re[g] = sr
         t_im[g] = si
+        cr, ci = cr * sr_step - ci * si_step, cr * si_step + ci * sr_step
     ang = -delta * (start - icentre)
     cr = math.cos(ang)
     ci = math.sin(ang)
