@@ -5,14 +5,18 @@ a polar heat map ``H[n_theta, n_tau]``: row n_theta is the envelope of the circu
 cross-correlation of the transmitted period with the received block resampled by the Doppler
 ratio alpha of eq. 1 for the direction ``theta = pi n_theta / N``.
 
-Pipeline per block (all directions at once)::
+Two implementations of the same eq. 1 (see :func:`doppler_heatmap`, Notes):
 
-    block (+ neighbour samples) --resample by alpha_n about the block centre, fold M periods-->
-    (N+1, P) --rfft--> x conj(S), one-sided --ifft--> |.| = H
+* ``method="direct"``: resample in time about the block centre (Kaiser-windowed sinc,
+  polyphase table), fold the M periods -> (N+1, P) -> rfft x conj(S), one-sided -> ifft -> |.|.
+  Kernel ``_heatmap_kernels._resample_fold``, numpy twin ``_resample_fold_numpy``.
+* ``method="spectral"`` (default): the folded spectrum of the resampled block is the DFT of the
+  unresampled block at frequencies scaled by 1/alpha; one rfft of the block, Kaiser-Bessel
+  gridding for all directions, window-edge corrections -> x conj(S) -> ifft -> |.|.
+  Kernel ``_heatmap_kernels._spectral_bank`` (+ ``_add_strip``), numpy twin
+  ``_spectral_bank_numpy`` (+ ``_strip_numpy``).
 
-The resample-and-fold step runs in a numba kernel (``_heatmap_kernels._resample_fold``,
-parallel over directions) with a plain numpy twin here (``_resample_fold_numpy``); the
-spectral step is shared (``scipy.fft``, batched over directions).
+Kernels run in parallel over directions; the FFTs use ``scipy.fft`` batched over directions.
 """
 
 from __future__ import annotations
