@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.estimate import PoseEstimate
+from localization.grid_filter import GridFilter
 from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.sensor import SensorConfig, SensorTables, build_tables, validate_block
 from mapping.heatmap import HeatMap, doppler_heatmap
@@ -79,6 +80,35 @@ class PFTracker:
         return self.pf.poses.copy(), w / w.sum()
 
 
+class GridTracker:
+    """The exact grid filter (:class:`~localization.grid_filter.GridFilter`) as a Tracker."""
+
+    def __init__(self, gf: GridFilter, tables: SensorTables, config: SonarConfig) -> None:
+        self.gf, self.tables, self.config = gf, tables, config
+
+    def update(self, block: BlockInput) -> EstimateOut:
+        hm = block_heatmap(block, self.config)
+        return estimate_out(self.gf.step(hm, block.speed_m_s, block.yaw_rate_rad_s,
+                                         block.dt_s))
+
+    def reinit_global(self) -> None:
+        self.gf.reset_global()
+
+    def state_dict(self) -> dict[str, Any]:
+        return dict(self.gf.state_dict())
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.gf = GridFilter.from_state_dict(state, self.tables)
+
+    def particles(self) -> None:
+        return None  # a histogram, not a particle set
+
+
+#: Largest grid-filter belief (cells x headings) a session may hold: 4e6 states = 32 MB,
+#: copied and checkpointed on every block. Larger maps need the particle filter.
+MAX_GRID_STATES = 4_000_000
+
+
 class LocalizationFactory:
     """Trackers on the maps of a :class:`~service.mapstore.MapStore`.
 
@@ -105,18 +135,31 @@ class LocalizationFactory:
                 self._tables[map_id] = hit
             return hit[1], hit[2]
 
-    def create(self, map_id: str, spec: FilterSpec) -> PFTracker:
-        if spec.kind != "pf":
-            raise ValueError(f"filter must be 'pf' (the grid filter is not available), "
-                             f"got {spec.kind!r}")
+    def create(self, map_id: str, spec: FilterSpec) -> PFTracker | GridTracker:
         tables, config = self.tables(map_id)
-        rng = np.random.default_rng(spec.seed)
         pose = None if spec.initial_pose is None else np.asarray(spec.initial_pose)
         cov = None if spec.initial_covariance is None else np.asarray(spec.initial_covariance)
+        if spec.kind == "grid":
+            n_states = int(tables.free_mask.size) * tables.config.n_angles
+            if n_states > MAX_GRID_STATES:
+                raise ValueError(f"filter 'grid' needs {n_states} states on map {map_id!r}; "
+                                 f"allowed <= {MAX_GRID_STATES} (use filter 'pf')")
+            try:
+                gf = GridFilter(tables, None, pose, cov)
+            except np.linalg.LinAlgError:
+                raise ValueError("initial_covariance must be invertible for filter 'grid'"
+                                 ) from None
+            return GridTracker(gf, tables, config)
+        if spec.kind != "pf":
+            raise ValueError(f"filter must be 'pf' or 'grid', got {spec.kind!r}")
+        rng = np.random.default_rng(spec.seed)
         pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles), rng, pose, cov)
         return PFTracker(pf, tables, config)
 
-    def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> PFTracker:
+    def restore(self, map_id: str, spec: FilterSpec,
+                state: dict[str, Any]) -> PFTracker | GridTracker:
         tables, config = self.tables(map_id)
+        if spec.kind == "grid":
+            return GridTracker(GridFilter.from_state_dict(state, tables), tables, config)
         return PFTracker(ParticleFilter.from_state_dict(state, tables), tables, config)
 

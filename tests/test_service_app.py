@@ -369,3 +369,21 @@ def test_openapi_documents_both_block_bodies(client: TestClient) -> None:
               ["parameters"]}
     assert {"seq", "fs_hz", "speed_m_s", "yaw_rate_rad_s", "x-omnisonar-seq"} <= params
     assert "application/octet-stream" in spec["paths"]["/maps"]["post"]["requestBody"]["content"]
+
+
+def test_grid_filter_session(client: TestClient, settings: Settings) -> None:
+    sid = new_session(client, filter="grid")
+    r = post_raw(client, sid, 0, noise_block(0).tobytes())
+    assert r.status_code == 200, r.text
+    e = r.json()
+    check_estimate({**e, "ess": min(e["ess"], 300)}, 0)
+    # tracked start: the grid posterior stays near the initial pose after one block
+    assert math.hypot(e["pose"]["x"] - 1.0, e["pose"]["y"] - 1.5) < 0.3
+    r = client.get(f"/sessions/{sid}/particles")
+    assert r.status_code == 409 and r.json()["field"] == "session_id"
+    before = snapshot(client, settings, sid)
+    assert post_raw(client, sid, 0, noise_block(0).tobytes()).status_code == 409
+    assert snapshot(client, settings, sid) == before
+    singular = client.post("/sessions", json={**TRACKED, "filter": "grid",
+                                               "initial_covariance": [[0.0] * 3] * 3})
+    assert singular.status_code == 422 and singular.json()["field"] == "initial_covariance"

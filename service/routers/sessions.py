@@ -120,7 +120,7 @@ def _require_map(maps: MapStore, map_id: str) -> None:
 
 def _field_of(exc: ValueError) -> str | None:
     text = str(exc)
-    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id"):
+    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id", "filter"):
         if name in text:
             return name
     return None
