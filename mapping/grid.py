@@ -41,7 +41,23 @@ from mapping.heatmap import HeatMap
 from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
-_FLOORS = ("median", "none")
+_FLOORS = ("median", "none", "pNN (e.g. p90)")
+
+
+def _check_floor(floor: str) -> float | None:
+    """Percentile of the floor (50 for "median"), None for "none"; ValueError otherwise."""
+    if floor == "none":
+        return None
+    if floor == "median":
+        return 50.0
+    if floor.startswith("p"):
+        try:
+            q = float(floor[1:])
+        except ValueError:
+            q = -1.0
+        if 0 < q < 100:
+            return q
+    raise ValueError(f"floor must be one of {_FLOORS}, got {floor!r}")
 
 
 @dataclass(frozen=True)
@@ -58,7 +74,8 @@ class GridParams:
     literal : bool
         Use eqs. 2-5 exactly as printed (see the module notes) instead of the intended geometry.
     floor : str
-        Per-block noise-floor removal: "median" (subtract the block median, clip at 0) or "none".
+        Per-block noise-floor removal: "median" (subtract the block median, clip at 0), "pNN"
+        (subtract the NN-th percentile of the block, e.g. "p90") or "none".
     skip_unobservable : bool
         Skip blocks whose heat map has ``direction_observable`` False (counted, not added).
     """
@@ -74,8 +91,7 @@ class GridParams:
             raise ValueError(f"resolution_m must be in [0.001, 10] m, got {self.resolution_m}")
         if not (math.isfinite(self.radius_m) and self.radius_m > 0):
             raise ValueError(f"radius_m must be > 0, got {self.radius_m}")
-        if self.floor not in _FLOORS:
-            raise ValueError(f"floor must be one of {_FLOORS}, got {self.floor!r}")
+        _check_floor(self.floor)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON parameters (stored in the map file)."""
@@ -134,13 +150,15 @@ def union_extent(extents: Iterable[GridExtent]) -> GridExtent:
 
 
 def remove_floor(H: FloatArray, floor: str = "median") -> FloatArray:
-    """Per-block noise floor removal: ``max(H - median(H), 0)`` or ``H`` unchanged."""
-    if floor not in _FLOORS:
-        raise ValueError(f"floor must be one of {_FLOORS}, got {floor!r}")
+    """Per-block noise floor removal: ``max(H - percentile(H, q), 0)`` or ``H`` unchanged.
+
+    ``floor`` is "median" (q = 50), "pNN" (q = NN, e.g. "p90") or "none".
+    """
+    q = _check_floor(floor)
     H = np.asarray(H, dtype=np.float64)
-    if floor == "none":
+    if q is None:
         return H
-    return np.maximum(H - np.median(H), 0.0)
+    return np.maximum(H - np.percentile(H, q), 0.0)
 
 
 def _check_heatmap(heatmap: HeatMap) -> tuple[float, float]:

@@ -77,6 +77,17 @@ class InverseParams:
         ruled out (a full free disc); beyond it only the elements that would have echoed to
         the pose (their normal points at it), because a non-specular wall end closer than
         the nearest echo gives no echo of its own.
+    reweight_rounds, reweight_eps, reweight_gain : int, float, float
+        Reweighted l1 (Candes, Wakin & Boyd 2008): after each solve the weight of unknown i
+        becomes ``gain * eps / (x_i / s + eps)`` with ``s`` the 99th percentile of x > 0, and
+        the problem is solved again from the last solution. Sparser maps, less bias on strong
+        cells.
+    occlusion_rounds, occluder_fraction, occlusion_margin_m : int, float, float
+        Occlusion: after a solve, cells above ``occluder_fraction`` of the 99th percentile of
+        the map are taken as walls; the operator is rebuilt so that a cell farther than the
+        first such wall along its bearing (plus ``occlusion_margin_m``) is invisible from that
+        pose, and the problem is solved again. Multiple-reflection echoes, which the
+        back-projection places behind the walls, then have nothing to explain them.
     doppler_spread : bool
         Model the Doppler bank's angular point spread ``|sinc(kappa dcos)|`` (see
         :func:`doppler_kappa`) in the operator. Off by default: on the image-source runs it
@@ -87,11 +98,17 @@ class InverseParams:
     bin_m: float | None = None
     lam_rel: float = 0.01
     iterations: int = 200
-    active_fraction: float = 0.05
+    active_fraction: float = 0.15
     free_fraction: float = 0.3
     free_margin_m: float = 0.1
     free_full_m: float = 1.0
     doppler_spread: bool = False
+    reweight_rounds: int = 0
+    occlusion_rounds: int = 0
+    occluder_fraction: float = 0.5
+    occlusion_margin_m: float = 0.2
+    reweight_eps: float = 0.1
+    reweight_gain: float = 2.0
 
     def __post_init__(self) -> None:
         if not 1 <= self.orientations <= 360:
@@ -307,15 +324,51 @@ def forbidden_unknowns(obs: Observations, extent: GridExtent, cells: NDArray[np.
     return out
 
 
+def occluded(pose: FloatArray, x: NDArray[np.floating], y: NDArray[np.floating],
+             walls_xy: FloatArray, res: float, margin_m: float,
+             n_bins: int = 720) -> NDArray[np.bool_]:
+    """Points (x, y) hidden from ``pose`` behind the wall cells ``walls_xy`` (n, 2).
+
+    The first wall range per bearing bin (each wall cell covering the bins its width spans)
+    is compared with the point's range plus ``margin_m``.
+    """
+    px, py = pose[0], pose[1]
+    bw = 2 * np.pi / n_bins
+    first = np.full(n_bins, np.inf)
+    if walls_xy.shape[0]:
+        wr = np.hypot(walls_xy[:, 0] - px, walls_xy[:, 1] - py)
+        wb = np.arctan2(walls_xy[:, 1] - py, walls_xy[:, 0] - px)
+        half = np.arctan2(0.75 * res, np.maximum(wr, res))
+        lo = np.floor((wb - half) / bw).astype(np.int64)
+        hi = np.floor((wb + half) / bw).astype(np.int64)
+        for off in range(int((hi - lo).max()) + 1):
+            m = lo + off <= hi
+            np.minimum.at(first, (lo[m] + off) % n_bins, wr[m])
+    r = np.hypot(x - px, y - py)
+    b = np.floor(np.arctan2(y - py, x - px) / bw).astype(np.int64) % n_bins
+    return np.asarray(r > first[b] + margin_m)
+
+
 def build_operator(obs: Observations, extent: GridExtent, cells: NDArray[np.int64],
-                   orientations: int, radius_m: float) -> Operator:
-    """The sparse forward operator over ``cells`` (flat map indices)."""
+                   orientations: int, radius_m: float, walls_xy: FloatArray | None = None,
+                   occlusion_margin_m: float = 0.2) -> Operator:
+    """The sparse forward operator over ``cells`` (flat map indices).
+
+    With ``walls_xy`` (n, 2) a cell hidden behind those wall cells from a pose does not
+    contribute to that pose's observation (see :func:`occluded`).
+    """
     K, n_dirs, n_bins = obs.Y.shape
     n_act = cells.size
     rows_all, cols_all, vals_all = [], [], []
     cos_rows = np.cos(np.pi * np.arange(n_dirs) / (n_dirs - 1))
     for k in range(K):
         row, b, beta, ok, ang = _geometry(obs, extent, cells, k, radius_m)
+        if walls_xy is not None:
+            nx = extent.shape[1]
+            cx = extent.origin_m[0] + extent.resolution_m * (cells % nx)
+            cy = extent.origin_m[1] + extent.resolution_m * (cells // nx)
+            ok &= ~occluded(obs.poses[k], cx, cy, walls_xy, extent.resolution_m,
+                            occlusion_margin_m)
         j = np.nonzero(ok)[0]
         if orientations == 1:
             o_cols, o_w = [j], [np.ones(j.size)]
@@ -359,13 +412,14 @@ def operator_norm_sq(op: Operator, rng: np.random.Generator, iterations: int = 3
     return lam
 
 
-def fista_nonneg_l1(op: Operator, y: FloatArray, lam: float, iterations: int,
-                    lipschitz: float) -> tuple[FloatArray, list[float]]:
+def fista_nonneg_l1(op: Operator, y: FloatArray, lam: float | FloatArray, iterations: int,
+                    lipschitz: float, x0: FloatArray | None = None
+                    ) -> tuple[FloatArray, list[float]]:
     """FISTA for ``min 0.5 ||A x - y||^2 + lam sum(x)`` with ``x >= 0``.
 
     Returns the solution and the objective every 10th iteration (and the last).
     """
-    x = np.zeros((op.orientations, op.cells.size))
+    x = np.zeros((op.orientations, op.cells.size)) if x0 is None else x0.copy()
     z = x.copy()
     t = 1.0
     step = 1.0 / lipschitz
@@ -378,8 +432,35 @@ def fista_nonneg_l1(op: Operator, y: FloatArray, lam: float, iterations: int,
         x, t = x_new, t_new
         if i % 10 == 0 or i == iterations - 1:
             history.append(0.5 * float(np.sum((op.forward(x) - y) ** 2))
-                           + lam * float(x.sum()))
+                           + float(np.sum(lam * x)))
     return x, history
+
+
+def _solve(obs: Observations, extent: GridExtent, cells: NDArray[np.int64],
+           forbidden: NDArray[np.bool_], grid: GridParams, params: InverseParams,
+           rng: np.random.Generator, walls_xy: FloatArray | None
+           ) -> tuple[Operator, FloatArray, float, float, list[float]]:
+    """Build the operator (with occluders if given) and solve (with reweighting rounds)."""
+    op = build_operator(obs, extent, cells, params.orientations, grid.radius_m, walls_xy,
+                        params.occlusion_margin_m)
+    if forbidden.any():  # zero the columns: those unknowns stay at 0 under the solver
+        allowed = sp.diags((~forbidden).ravel().astype(np.float64))
+        op = Operator(sp.csr_matrix(op.A @ allowed), op.cells, op.orientations,
+                      op.data_shape, op.map_shape)
+    y = obs.Y
+    lip = operator_norm_sq(op, rng) * 1.05
+    lam = params.lam_rel * float(op.adjoint(y).max())
+    x, hist = fista_nonneg_l1(op, y, lam, params.iterations, lip)
+    for _ in range(params.reweight_rounds):
+        pos_x = x[x > 0]
+        if pos_x.size == 0:
+            break
+        scale = float(np.percentile(pos_x, 99))
+        eps = params.reweight_eps
+        weights = params.reweight_gain * eps / (x / scale + eps)
+        x, more = fista_nonneg_l1(op, y, lam * weights, params.iterations, lip, x0=x)
+        hist += more
+    return op, x, lam, lip, hist
 
 
 def reconstruct_inverse(
@@ -402,18 +483,22 @@ def reconstruct_inverse(
         return np.zeros(extent.shape), {"active_cells": 0}
     cells = np.nonzero(back >= params.active_fraction * np.percentile(pos, 99))[0]
     cells = cells[back[cells] > 0]
-    op = build_operator(obs, extent, cells, params.orientations, grid.radius_m)
     radii = free_radii(obs, params.free_fraction, params.free_margin_m)
     forbidden = forbidden_unknowns(obs, extent, cells, params.orientations, radii,
                                    params.free_full_m)
-    if forbidden.any():  # zero the columns: those unknowns stay at 0 under the solver
-        allowed = sp.diags((~forbidden).ravel().astype(np.float64))
-        op = Operator(sp.csr_matrix(op.A @ allowed), op.cells, op.orientations,
-                      op.data_shape, op.map_shape)
-    y = obs.Y
-    lip = operator_norm_sq(op, rng) * 1.05
-    lam = params.lam_rel * float(op.adjoint(y).max())
-    x, hist = fista_nonneg_l1(op, y, lam, params.iterations, lip)
+    op, x, lam, lip, hist = _solve(obs, extent, cells, forbidden, grid, params, rng, None)
+    for _ in range(params.occlusion_rounds):
+        G = op.to_map(x)
+        pos_g = G[G > 0]
+        if pos_g.size == 0:
+            break
+        strong = np.nonzero(G.ravel() >= params.occluder_fraction * np.percentile(pos_g, 99))[0]
+        nx = extent.shape[1]
+        walls_xy = np.column_stack([extent.origin_m[0] + extent.resolution_m * (strong % nx),
+                                    extent.origin_m[1] + extent.resolution_m * (strong // nx)])
+        op, x, lam, lip, more = _solve(obs, extent, cells, forbidden, grid, params, rng,
+                                       walls_xy)
+        hist += more
     info = {"active_cells": int(cells.size), "lambda": lam, "lipschitz": lip,
             "forbidden_unknowns": int(forbidden.sum()),
             "objective_first": hist[0], "objective_last": hist[-1],

@@ -195,3 +195,10 @@ def test_extent_grows_and_is_aligned() -> None:
         map_extent(np.full((2, 3), np.nan), 1.0, RES)
     with pytest.raises(ValueError, match="resolution_m"):
         GridParams(resolution_m=0.0)
+
+
+def test_percentile_floor() -> None:
+    H = np.arange(100.0).reshape(4, 25)
+    np.testing.assert_allclose(remove_floor(H, "p90"), np.maximum(H - np.percentile(H, 90), 0))
+    with pytest.raises(ValueError, match="floor"):
+        GridParams(floor="p100")

@@ -124,3 +124,14 @@ def test_inverse_removes_mirror_ghosts_on_a_curved_path() -> None:
     q_inv = evaluate(WallMap(Gi, ext.origin_m, ext.resolution_m), walls)
     assert q_inv.ghost_energy < 0.5 * q_paper.ghost_energy
     assert q_inv.get(0.25).precision > q_paper.get(0.25).precision
+
+
+def test_occlusion_hides_points_behind_wall_cells() -> None:
+    from mapping.reconstruct import occluded
+
+    wall = np.column_stack([np.full(41, 1.0), np.linspace(-1.0, 1.0, 41)])  # x = 1, |y| <= 1
+    x = np.array([0.5, 2.0, 2.0, 1.0, 2.0])
+    y = np.array([0.0, 0.0, 0.9, 0.5, 3.0])
+    hidden = occluded(np.array([0.0, 0.0, 0.0]), x, y, wall, 0.05, 0.2)
+    # in front, behind, behind near the end, on the wall, beside (bearing past the wall end)
+    assert hidden.tolist() == [False, True, True, False, False]
