@@ -172,7 +172,7 @@ def test_path_table_doppler_and_angle_match_the_analytic_truth():
     scene = _scene([(tuple(2 * n - 300 * tangent), tuple(2 * n + 300 * tangent))])
     traj = _line((0.0, 0.0), heading, speed)
     engine = IsmConfig(order=1)
-    prepared = prepare_scene(scene, traj, CFG1, engine, 0.0, CFG1.block_s)
+    prepared = prepare_scene(scene, CFG1, engine)
     plan = plan_stretch(prepared, traj, CFG1, engine, 0, CFG1.block_samples)
     table = path_table(plan, prepared, traj, CFG1, engine)
     t_mid = CFG1.block_s / 2
@@ -190,7 +190,7 @@ def test_speed_zero_reduces_to_the_static_image_response():
     xy = np.array([2.0, 2.0])
     traj = stationary_path(xy, math.pi / 4, 30.0)
     engine = IsmConfig(order=2)
-    prepared = prepare_scene(scene, traj, CFG1, engine, 0.0, CFG1.block_s)
+    prepared = prepare_scene(scene, CFG1, engine)
     plan = plan_stretch(prepared, traj, CFG1, engine, 0, CFG1.block_samples)
     table = path_table(plan, prepared, traj, CFG1, engine)
     # by hand (paper scene, from (2, 2)): walls 1 and 2, their corner, and the corner of
@@ -211,14 +211,14 @@ def test_hermite_delays_match_per_sample_newton_on_a_curve():
     engine = IsmConfig(order=2)
     cfg = CFG1
     start = 7 * cfg.block_samples
-    prepared = prepare_scene(scene, traj, cfg, engine, start / cfg.fs_hz, start / cfg.fs_hz + 1)
+    prepared = prepare_scene(scene, cfg, engine)
     plan = plan_stretch(prepared, traj, cfg, engine, start, cfg.block_samples)
     taus = delay_at_samples(plan, cfg, engine)
     rng = np.random.default_rng(1)
     idx = rng.choice(cfg.block_samples, 40, replace=False)
     worst = 0.0
     for i, img in enumerate(plan.active):
-        A, b = prepared.images.A[img], prepared.images.b[img]
+        A, b = plan.images.A[img], plan.images.b[img]
         for n in idx:
             ref = retarded_delay_scalar(A, b, traj, (start + n) / cfg.fs_hz, C)
             worst = max(worst, abs(taus[i, n] - ref))
@@ -248,7 +248,7 @@ def test_kernel_matches_numpy_twin_across_a_path_appearing(spreading, fractional
     engine = IsmConfig(order=2, spreading=spreading, fractional_delay=fractional_delay,
                        sinc_half_taps=8)
     cfg = CFG1
-    prepared = prepare_scene(scene, traj, cfg, engine, 0.0, cfg.block_s)
+    prepared = prepare_scene(scene, cfg, engine)
     plan = plan_stretch(prepared, traj, cfg, engine, 0, 2000)
     assert np.any(np.diff(plan.gain, axis=1) != 0)  # a path does disappear here
     got = render_stretch(plan, cfg, engine)
@@ -310,7 +310,7 @@ def test_automatic_order_captures_every_shoebox_path_within_one_period():
     xy = np.array([1.0, 1.2])
     traj = stationary_path(xy, 0.0, 10.0)
     engine = IsmConfig()
-    prepared = prepare_scene(scene, traj, CFG1, engine, 0.0, CFG1.block_s)
+    prepared = prepare_scene(scene, CFG1, engine)
     plan = plan_stretch(prepared, traj, CFG1, engine, 0, CFG1.block_samples)
     table = path_table(plan, prepared, traj, CFG1, engine)
     limit = C * CFG1.period_samples / CFG1.fs_hz
@@ -444,7 +444,7 @@ def test_fast_engine_equals_the_per_sample_reference_loop(spreading):
     scene, traj = builtin_scene("paper"), builtin_path("paper-b")
     engine = IsmConfig(order=2, spreading=spreading)
     start, n = 9 * CFG1.block_samples + 123, 300
-    prepared = prepare_scene(scene, traj, CFG1, engine, start / CFG1.fs_hz, start / CFG1.fs_hz)
+    prepared = prepare_scene(scene, CFG1, engine)
     plan = plan_stretch(prepared, traj, CFG1, engine, start, n)
     assert np.all(plan.gain == plan.gain[:, :1])  # no path appears here (no fades)
     fast = render_stretch(plan, CFG1, engine)

@@ -87,8 +87,11 @@ def run_meta(
         "direct_path": False,
     }
     if blocks:
-        meta["order"] = blocks[0].meta.get("order")
-        meta["n_images"] = blocks[0].meta.get("n_images")
+        # highest reflection order actually rendered, and the largest path count per block
+        for key in ("order", "n_paths", "order_limit"):
+            values = [b.meta[key] for b in blocks if key in b.meta]
+            if values:
+                meta[key] = max(values)
     return meta
 
 

@@ -133,6 +133,8 @@ def _check_segments(segments: FloatArray) -> FloatArray:
     return seg
 
 
+#: An aperture narrower than this (metres) is a point: a corner bounce, not followed further.
+_POINT_APERTURE_M = 1e-7
 _IDENTITY_KEY = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
 
 
@@ -149,6 +151,14 @@ def candidate_images(
 ) -> ImageSet:
     """Distinct image maps up to ``max_order`` that can matter for the given robot positions.
 
+    Beam tracing without occlusion: every wall sequence carries, for each robot position,
+    the part of its last wall that rays from its image can reach through the earlier walls
+    (the aperture). A child through wall ``w`` keeps the positions where ``w`` meets the
+    wedge from the image through that aperture, beyond it, and where the image is within
+    ``max_path_m`` (a valid path is never shorter than the distance from the robot to the
+    image of any of its prefixes); a sequence with no position left ends its branch. Exact
+    validity and occlusion are decided later by :func:`trace_images`.
+
     Parameters
     ----------
     segments : ndarray, shape (W, 2, 2)
@@ -158,7 +168,7 @@ def candidate_images(
     max_order : int
         Highest number of reflections, >= 1.
     max_path_m : float
-        Branches whose image is farther than this from every position are dropped.
+        Longest path of interest in metres.
     max_images : int
         Raise ``ValueError`` rather than enumerate more images than this.
 
@@ -179,30 +189,40 @@ def candidate_images(
     out_b: list[FloatArray] = []
     out_order: list[int] = []
     out_walls: list[tuple[int, ...]] = []
-    frontier: list[tuple[FloatArray, FloatArray, tuple[int, ...]]] = [
-        (np.eye(2), np.zeros(2), ())
-    ]
+    all_idx = np.arange(pos.shape[0])
+    # node: map (A, b), wall sequence, alive position indices, aperture end points there
+    frontier: list[_Node] = [(np.eye(2), np.zeros(2), (), all_idx, pos, pos)]
     reached = 0
-    node_keys: set[tuple[float, ...]] = set()
     for order in range(1, max_order + 1):
-        new_frontier = []
-        for A, b, walls in frontier:
+        new_frontier: list[_Node] = []
+        for A, b, walls, alive, ap0, ap1 in frontier:
+            source = pos[alive] @ A.T + b  # the parent image at the alive positions
             for w in range(seg.shape[0]):
                 if walls and walls[-1] == w:
                     continue
                 A2 = WA[w] @ A
                 b2 = WA[w] @ b + Wb[w]
-                node = _map_key(A2, b2) + (float(w),)
-                if node in node_keys or node[:6] == _IDENTITY_KEY:
-                    continue  # seen, or the robot itself (the direct path is not an echo)
-                img = pos @ A2.T + b2
-                if np.min(np.linalg.norm(img - pos, axis=1)) > max_path_m:
-                    continue
-                if walls and not _visible_through(pos @ A.T + b, seg[walls[-1]], seg[w]):
-                    continue
-                node_keys.add(node)
-                new_frontier.append((A2, b2, walls + (w,)))
                 key = _map_key(A2, b2)
+                if key == _IDENTITY_KEY:
+                    continue  # the robot itself: the direct path is not an echo
+                x = pos[alive]
+                keep = np.linalg.norm(x @ A2.T + b2 - x, axis=1) <= max_path_m
+                if walls:
+                    lo, hi, ok = _clip_beam(source, ap0, ap1, seg[w])
+                else:
+                    lo, hi = np.zeros(alive.size), np.ones(alive.size)
+                    ok = np.ones(alive.size, dtype=bool)
+                keep &= ok
+                if not np.any(keep):
+                    continue
+                c, d = seg[w, 0], seg[w, 1]
+                # a beam through a single point (a corner) is output but not followed on
+                wide = keep & ((hi - lo) * np.linalg.norm(d - c) > _POINT_APERTURE_M)
+                if np.any(wide):
+                    new_frontier.append((
+                        A2, b2, walls + (w,), alive[wide],
+                        c + lo[wide, None] * (d - c), c + hi[wide, None] * (d - c),
+                    ))
                 if key not in seen:
                     seen.add(key)
                     out_A.append(A2)
@@ -214,9 +234,10 @@ def candidate_images(
                             f"more than max_images={max_images} image sources up to order "
                             f"{order}; lower the order or max_path_m"
                         )
+        if len(out_order) and out_order[-1] == order:
+            reached = order
         if not new_frontier:
             break
-        reached = order
         frontier = new_frontier
     return ImageSet(
         A=np.array(out_A, dtype=np.float64).reshape(-1, 2, 2),
@@ -227,14 +248,20 @@ def candidate_images(
     )
 
 
-def _visible_through(sources: FloatArray, via: FloatArray, target: FloatArray) -> bool:
-    """True if for some source a ray through segment ``via`` meets segment ``target`` beyond it.
+_Node = tuple[FloatArray, FloatArray, tuple[int, ...], NDArray[np.int64], FloatArray, FloatArray]
 
-    The region reached is the wedge from the source spanned by ``via``, beyond ``via``: three
-    half-planes. Clip ``target`` against them (Cyrus-Beck) for every source at once.
+
+def _clip_beam(
+    sources: FloatArray, ap0: FloatArray, ap1: FloatArray, target: FloatArray
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Part of segment ``target`` reached by rays from each source through its aperture.
+
+    The region is the wedge from the source spanned by the aperture ``ap0 - ap1``, beyond
+    the aperture: three half-planes, against which ``target`` is clipped (Cyrus-Beck) for
+    every source at once. Returns the parameter interval ``[lo, hi]`` along ``target`` and
+    whether it is non-empty (with a small tolerance, so a corner point counts).
     """
-    s = sources
-    a, bb = via[0], via[1]
+    s, a, bb = sources, ap0, ap1
     c, d = target[0], target[1]
 
     def cross(u: FloatArray, v: FloatArray) -> FloatArray:
@@ -242,20 +269,22 @@ def _visible_through(sources: FloatArray, via: FloatArray, target: FloatArray) -
 
     orient = cross(a - s, bb - s)  # (m,)
     sign = np.where(orient >= 0, 1.0, -1.0)
-    # half-plane values f(q) >= 0 at the target end points c and d
+
     def halfplanes(q: FloatArray) -> FloatArray:
         # q on bb's side of line s-a, on a's side of line s-bb, and beyond line a-bb
         return np.stack(
             [
                 sign * cross(a - s, q - s),
                 -sign * cross(bb - s, q - s),
-                -sign * cross(bb - a, q - a) * np.ones_like(sign),
+                -sign * cross(bb - a, q - a),
             ]
         )
 
-    fc = halfplanes(c)
-    fd = halfplanes(d)
-    scale = np.linalg.norm(d - c) * np.linalg.norm(bb - a) + 1e-300
+    fc = halfplanes(np.broadcast_to(c, s.shape))
+    fd = halfplanes(np.broadcast_to(d, s.shape))
+    scale = np.linalg.norm(d - c) * (
+        np.linalg.norm(bb - a, axis=1) + np.linalg.norm(a - s, axis=1)
+    )
     tol = 1e-9 * scale
     lo = np.zeros(s.shape[0])
     hi = np.ones(s.shape[0])
@@ -264,14 +293,12 @@ def _visible_through(sources: FloatArray, via: FloatArray, target: FloatArray) -
         df = f1 - f0
         with np.errstate(divide="ignore", invalid="ignore"):
             u = (-tol - f0) / df
-        inc = df > 0
-        dec = df < 0
-        lo = np.where(inc, np.maximum(lo, u), lo)
-        hi = np.where(dec, np.minimum(hi, u), hi)
-        flat_out = (df == 0) & (f0 < -tol)
-        hi = np.where(flat_out, -1.0, hi)
+        lo = np.where(df > 0, np.maximum(lo, u), lo)
+        hi = np.where(df < 0, np.minimum(hi, u), hi)
+        hi = np.where((df == 0) & (f0 < -tol), -1.0, hi)
     degenerate = np.abs(orient) <= 1e-12 * scale
-    return bool(np.any((lo <= hi) & ~degenerate))
+    ok = (lo <= hi) & ~degenerate
+    return np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0), ok
 
 
 def trace_images(

@@ -315,48 +315,50 @@ def retarded_delay_scalar(
 # ---- which paths exist when ----------------------------------------------------------
 @dataclass(frozen=True)
 class PreparedScene:
-    """Scene arrays and the candidate images of one run (computed once per run)."""
+    """Scene arrays and the path limits of one run.
+
+    Attributes
+    ----------
+    segments, reflection : ndarray
+        Walls (W, 2, 2) and their reflection coefficients (W,).
+    order : int
+        Highest reflection order enumerated (``IsmConfig.order`` or ``max_order``).
+    max_path_m : float
+        Longest path kept (inf with a fixed order).
+    amplitude_floor : float
+        Smallest amplitude kept (relative to a rigid 1 m path).
+    """
 
     segments: FloatArray
     reflection: FloatArray
-    images: ImageSet
+    order: int
     max_path_m: float
     amplitude_floor: float
 
 
-def prepare_scene(
-    scene: SceneLike,
-    trajectory: TrajectoryLike,
-    config: SonarConfig,
-    engine: IsmConfig,
-    t_start_s: float,
-    t_end_s: float,
-) -> PreparedScene:
-    """Candidate image sources for the robot's positions between two times.
+def prepare_scene(scene: SceneLike, config: SonarConfig, engine: IsmConfig) -> PreparedScene:
+    """Scene arrays and the limits that decide which image paths are rendered.
 
-    The automatic order keeps every path no longer than ``max_path_m`` (default one
-    period's round trip) whose rigid amplitude is above the energy threshold.
+    With the automatic order every path no longer than ``max_path_m`` (default one
+    period's round trip, ``c P / fs``) and above the energy threshold is kept, up to
+    ``max_order``; with a fixed order every valid path up to that order.
     """
     seg = np.asarray(scene.segments(), dtype=np.float64)
     refl = np.asarray(scene.reflection_coefficients(), dtype=np.float64)
     if seg.ndim != 3 or seg.shape[0] == 0:
         raise ValueError("scene must have at least one wall")
     floor = 10.0 ** (engine.energy_threshold_db / 20.0)
-    step = engine.validity_grid_s
-    # the same nodes (whole multiples of the step) that plan_stretch traces
-    first, last = math.floor(t_start_s / step) - 1, math.floor(t_end_s / step) + 3
-    t = np.arange(first, last, dtype=np.float64) * step
-    pos = trajectory.position(t)
     if engine.order is None:
         limit = range_limit_m(config) if engine.max_path_m is None else engine.max_path_m
         # a rigid path of length L has amplitude L**-p; beyond floor**(-1/p) nothing counts
         limit = min(limit, floor ** (-1.0 / spreading_power(engine.spreading)))
-        slack = 2 * step * float(np.max(np.linalg.norm(trajectory.velocity(t), axis=1)))
-        images = candidate_images(seg, pos, engine.max_order, limit + slack)
-    else:
-        limit = np.inf
-        images = candidate_images(seg, pos, engine.order)
-    return PreparedScene(seg, refl, images, float(limit), floor)
+        return PreparedScene(seg, refl, engine.max_order, float(limit), floor)
+    return PreparedScene(seg, refl, engine.order, float(np.inf), floor)
+
+
+def stretch_images(prepared: PreparedScene, positions_m: FloatArray) -> ImageSet:
+    """Candidate images for robot positions (the validity nodes of one stretch)."""
+    return candidate_images(prepared.segments, positions_m, prepared.order, prepared.max_path_m)
 
 
 def path_gains(
@@ -379,6 +381,7 @@ class StretchPlan:
 
     start_sample: int
     n_samples: int
+    images: ImageSet  # candidates at this stretch's validity nodes
     active: NDArray[np.int64]  # image indices with a non-zero gain somewhere in the stretch
     tau: FloatArray
     dtau: FloatArray
@@ -408,19 +411,20 @@ def plan_stretch(
     g0 = int(math.floor(t0 / hv)) - 1
     g1 = int(math.floor(t1 / hv)) + 2
     tv = np.arange(g0, g1 + 1, dtype=np.float64) * hv
-    trace = trace_images(
-        prepared.images, prepared.segments, prepared.reflection, trajectory.position(tv)
-    )
+    pos = trajectory.position(tv)
+    images = stretch_images(prepared, pos)
+    trace = trace_images(images, prepared.segments, prepared.reflection, pos)
     gains = path_gains(trace, prepared, engine.spreading)
     active = np.flatnonzero(np.any(gains != 0.0, axis=1))
     k0 = int(math.floor(t0 / ht)) - 1
     k1 = int(math.floor(t1 / ht)) + 2
     tt = np.arange(k0, k1 + 1, dtype=np.float64) * ht
-    A, b = prepared.images.A[active], prepared.images.b[active]
+    A, b = images.A[active], images.b[active]
     tau, dtau = retarded_delay(A, b, trajectory, tt, config.sound_speed_m_s, engine.newton_steps)
     return StretchPlan(
         start_sample=start_sample,
         n_samples=n_samples,
+        images=images,
         active=active,
         tau=tau,
         dtau=dtau,
@@ -560,12 +564,12 @@ def render_reference(
     fs, c = config.fs_hz, config.sound_speed_m_s
     power = spreading_power(engine.spreading)
     out = np.zeros(n_samples)
-    images = prepared.images
     for n in range(n_samples):
         absn = start_sample + n
         t = absn / fs
-        trace = trace_images(images, prepared.segments, prepared.reflection,
-                             trajectory.position(np.array([t])))
+        x = trajectory.position(np.array([t]))
+        images = stretch_images(prepared, x)
+        trace = trace_images(images, prepared.segments, prepared.reflection, x)
         gains = path_gains(trace, prepared, engine.spreading)[:, 0]
         acc = 0.0
         for i in np.flatnonzero(gains):
@@ -588,7 +592,7 @@ def path_table(
     t_mid = (plan.start_sample + plan.n_samples / 2.0) / fs
     j = int(np.argmin(np.abs(plan.trace_t_s - t_mid)))
     idx = plan.active[plan.trace.valid[plan.active, j]]
-    A, b = prepared.images.A[idx], prepared.images.b[idx]
+    A, b = plan.images.A[idx], plan.images.b[idx]
     tau, dtau = retarded_delay(
         A, b, trajectory, np.array([t_mid]), config.sound_speed_m_s, engine.newton_steps
     )
@@ -687,9 +691,7 @@ def iter_ism_blocks(
     if first_block < 0:
         raise ValueError(f"first_block must be >= 0, got {first_block}")
     B = config.block_samples
-    t_start = first_block * config.block_s
-    t_end = (first_block + n_blocks) * config.block_s
-    prepared = prepare_scene(scene, trajectory, config, engine, t_start, t_end)
+    prepared = prepare_scene(scene, config, engine)
     tail: FloatArray | None = None
     for k in range(first_block, first_block + n_blocks):
         plan = plan_stretch(prepared, trajectory, config, engine, k * B, B)
@@ -717,8 +719,19 @@ def iter_ism_blocks(
             speed_m_s=speed,
             yaw_rate_rad_s=float(np.asarray(trajectory.yaw_rate_rad_s(t_mid)).ravel()[0]),
             paths=paths,
-            meta={"order": int(prepared.images.max_order), "n_images": prepared.images.n},
+            meta=_plan_meta(plan, prepared),
         )
+
+
+def _plan_meta(plan: StretchPlan, prepared: PreparedScene) -> dict[str, Any]:
+    """Per-block facts for the run metadata: orders, candidates, rendered paths."""
+    orders = plan.trace.order[plan.active]
+    return {
+        "order": int(orders.max()) if orders.size else 0,
+        "order_limit": int(prepared.order),
+        "n_images": int(plan.images.n),
+        "n_paths": int(plan.active.size),
+    }
 
 
 def simulate_stretch(
@@ -734,9 +747,6 @@ def simulate_stretch(
         raise ValueError(
             f"need n_samples >= 1 and start_sample >= 0, got {n_samples}, {start_sample}"
         )
-    fs = config.fs_hz
-    prepared = prepare_scene(
-        scene, trajectory, config, engine, start_sample / fs, (start_sample + n_samples) / fs
-    )
+    prepared = prepare_scene(scene, config, engine)
     plan = plan_stretch(prepared, trajectory, config, engine, start_sample, n_samples)
     return render_stretch(plan, config, engine)
