@@ -17,8 +17,9 @@ One time step is a single fused sweep over rows: row ``i`` updates ``qx`` node `
 the ``qy`` nodes of row ``i`` (from the old pressure), then the pressure of row ``i`` (from
 the new velocities). Rows are split into contiguous chunks, one ``prange`` iteration each;
 the first row of every chunk needs the last velocity row of the previous chunk, so its
-pressure is updated in a short second parallel pass. The arithmetic per element is the same
-as the plain numpy twin in ``fdtd.py`` (tested).
+pressure is updated in a short serial second pass (one thread barrier per step). The
+arithmetic per element is the same as the plain numpy twin at the end of this module
+(tested).
 """
 
 from __future__ import annotations
@@ -138,8 +139,8 @@ def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
                wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf,
                offset, flush, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w,
                out, n_chunks):  # pragma: no cover - numba
-    """Advance ``src_g.size`` steps: the fused sweep (two parallel passes over row chunks),
-    then the source and receiver of that step."""
+    """Advance ``src_g.size`` steps: the fused sweep (a parallel pass over row chunks and a
+    serial pass over the chunks' first rows), then the source and receiver of that step."""
     nf = p.shape[0]
     nx = p.shape[1]
     for n in range(src_g.shape[0]):
@@ -155,7 +156,7 @@ def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
                         _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml,
                                       walled, imp_ptr, imp_col, imp_beta, imp_buf, offset,
                                       flush)
-        for c in prange(n_chunks):
+        for c in range(n_chunks):  # serial: a few rows, and one barrier per step fewer
             s = (c * nx) // n_chunks
             e = ((c + 1) * nx) // n_chunks
             if e > s:

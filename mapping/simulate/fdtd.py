@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from typing import Any
 
@@ -134,6 +134,10 @@ class FdtdConfig:
                 f"FdtdConfig.max_frequency_hz must be > 0, got {self.max_frequency_hz}")
         if self.warmup_s is not None and not self.warmup_s >= 0:
             raise ValueError(f"FdtdConfig.warmup_s must be >= 0, got {self.warmup_s}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON dictionary of the fields."""
+        return asdict(self)
 
     def speed(self, sonar: SonarConfig) -> float:
         """The sound speed in use (own value, else the sonar's)."""
@@ -666,6 +670,7 @@ class FdtdSetup:
     segments_m: FloatArray
     impedance_pa_s_m: FloatArray
     trajectory: TrajectoryLike
+    first_block: int = 0
 
 
 @dataclass
@@ -696,7 +701,7 @@ class FdtdProgress:
 
 def setup_fdtd(segments_m: FloatArray, impedance_pa_s_m: FloatArray,
                trajectory: TrajectoryLike, sonar: SonarConfig, fdtd: FdtdConfig,
-               n_blocks: int | None = None) -> FdtdSetup:
+               n_blocks: int | None = None, first_block: int = 0) -> FdtdSetup:
     """Fit the grid, rasterize the walls and plan the steps of a moving-sonar run.
 
     Parameters
@@ -710,6 +715,8 @@ def setup_fdtd(segments_m: FloatArray, impedance_pa_s_m: FloatArray,
     sonar, fdtd : SonarConfig, FdtdConfig
     n_blocks : int or None
         Blocks to simulate; None: as many whole blocks as the path lasts (at least 1).
+    first_block : int
+        Index of the first block (block k starts at ``k * block_s``); the warm-up precedes it.
 
     Raises
     ------
@@ -730,8 +737,11 @@ def setup_fdtd(segments_m: FloatArray, impedance_pa_s_m: FloatArray,
         n_blocks = max(1, int(math.floor(float(trajectory.duration_s) / sonar.block_s + 1e-9)))
     if n_blocks < 1:
         raise ValueError(f"n_blocks must be >= 1, got {n_blocks}")
-    t_end = n_blocks * sonar.block_s
-    path = path_position(trajectory, np.linspace(0.0, t_end, 512))
+    if first_block < 0:
+        raise ValueError(f"first_block must be >= 0, got {first_block}")
+    t0 = first_block * sonar.block_s
+    t_end = (first_block + n_blocks) * sonar.block_s
+    path = path_position(trajectory, np.linspace(t0, t_end, 512))
     points = np.concatenate([seg.reshape(-1, 2), path]) if seg.size else path
     grid = fit_grid(points, fdtd)
     nx, ny = grid.shape
@@ -739,8 +749,8 @@ def setup_fdtd(segments_m: FloatArray, impedance_pa_s_m: FloatArray,
     warmup = 2 * diag / c if fdtd.warmup_s is None else fdtd.warmup_s
     dt = fdtd.time_step_s
     warmup_steps = int(math.ceil(warmup / dt))
-    t_start = -warmup_steps * dt
-    n_steps = warmup_steps + int(math.ceil(t_end / dt)) + _RESAMPLE_HALF_WIDTH + 2
+    t_start = t0 - warmup_steps * dt
+    n_steps = warmup_steps + int(math.ceil((t_end - t0) / dt)) + _RESAMPLE_HALF_WIDTH + 2
     pre = path_position(trajectory, np.array([t_start]))
     grid_all = fit_grid(np.concatenate([points, pre]), fdtd)
     walls = wall_nodes(seg, z, grid_all, fdtd, c)
@@ -754,7 +764,7 @@ def setup_fdtd(segments_m: FloatArray, impedance_pa_s_m: FloatArray,
             stacklevel=2,
         )
     return FdtdSetup(sonar, fdtd, grid_all, walls, c, n_blocks, t_start, n_steps, report,
-                     seg, z, trajectory)
+                     seg, z, trajectory, first_block)
 
 
 def _report(grid: FdtdGrid, sonar: SonarConfig, fdtd: FdtdConfig, c: float, courant: float,
@@ -762,9 +772,14 @@ def _report(grid: FdtdGrid, sonar: SonarConfig, fdtd: FdtdConfig, c: float, cour
     edge, fmax = injected_band(sonar, fdtd)
     dx, dt = fdtd.grid_step_m, fdtd.time_step_s
 
+    def one(f: float, a: float) -> float:
+        try:
+            return numerical_group_velocity(f, a, dx, dt, c) / c - 1
+        except ValueError:  # above the grid's cut-off: the grid does not carry it at all
+            return float("nan")
+
     def err(f: float) -> tuple[float, float]:
-        return tuple(numerical_group_velocity(f, a, dx, dt, c) / c - 1  # type: ignore[return-value]
-                     for a in (0.0, math.pi / 4))
+        return one(f, 0.0), one(f, math.pi / 4)
 
     nx, ny = grid.shape
     nbytes = 2 * (4 * nx * ny + nx + ny) * np.dtype(fdtd.dtype).itemsize
@@ -816,7 +831,8 @@ def advance(setup: FdtdSetup, state: FdtdState, n: int) -> None:
 
 
 def block_samples(setup: FdtdSetup, state: FdtdState, k: int) -> FloatArray:
-    """Received samples of block ``k`` at the sonar rate (needs the steps that cover it)."""
+    """Received samples of block ``k`` (absolute index) at the sonar rate; needs
+    :func:`steps_needed` steps done."""
     B = setup.sonar.block_samples
     t_first = setup.t_start_s + setup.fdtd.time_step_s  # received[m] is at t_start + (m+1) dt
     return resample_to_rate(state.received[: state.step], t_first, setup.fdtd.time_step_s,
@@ -851,22 +867,42 @@ def _empty_paths() -> PathTable:
                      angle_to_velocity_rad=e, reflection=e, amplitude=e)
 
 
+def sim_block(setup: FdtdSetup, state: FdtdState, k: int) -> SimBlock:
+    """Block ``k`` (absolute index) as a :class:`~mapping.simulate.base.SimBlock`; the
+    path table is empty (the FDTD does not separate echo paths)."""
+    if state.step < steps_needed(setup, k):
+        raise ValueError(f"block {k} needs {steps_needed(setup, k)} steps, {state.step} done")
+    traj = setup.trajectory
+    t_mid = np.array([(k + 0.5) * setup.sonar.block_s])
+    return SimBlock(
+        index=k, samples=block_samples(setup, state, k), t_s=k * setup.sonar.block_s,
+        pose=np.asarray(traj.pose(t_mid), dtype=np.float64).reshape(3),
+        speed_m_s=float(np.asarray(traj.speed_m_s(t_mid)).ravel()[0]),
+        yaw_rate_rad_s=float(np.asarray(traj.yaw_rate_rad_s(t_mid)).ravel()[0]),
+        paths=_empty_paths(), meta={"engine": "fdtd", "order": None},
+    )
+
+
 def finished_blocks(setup: FdtdSetup, state: FdtdState) -> list[SimBlock]:
     """The blocks of a completed run (``state.step == setup.n_steps``)."""
     if state.step < setup.n_steps:
         raise ValueError(f"run incomplete: {state.step} of {setup.n_steps} steps done")
-    out = []
-    traj = setup.trajectory
-    for k in range(setup.n_blocks):
-        t_mid = np.array([(k + 0.5) * setup.sonar.block_s])
-        out.append(SimBlock(
-            index=k, samples=block_samples(setup, state, k), t_s=k * setup.sonar.block_s,
-            pose=np.asarray(traj.pose(t_mid), dtype=np.float64).reshape(3),
-            speed_m_s=float(np.asarray(traj.speed_m_s(t_mid)).ravel()[0]),
-            yaw_rate_rad_s=float(np.asarray(traj.yaw_rate_rad_s(t_mid)).ravel()[0]),
-            paths=_empty_paths(), meta={"engine": "fdtd"},
-        ))
-    return out
+    ks = range(setup.first_block, setup.first_block + setup.n_blocks)
+    return [sim_block(setup, state, k) for k in ks]
+
+
+def iter_fdtd_blocks(scene: SceneLike, trajectory: TrajectoryLike, config: SonarConfig,
+                     n_blocks: int, engine: FdtdConfig, rng: np.random.Generator | None = None,
+                     first_block: int = 0, chunk_steps: int = 2000) -> Iterator[SimBlock]:
+    """The FDTD engine behind :func:`mapping.simulate.iter_blocks`: blocks in order, each
+    yielded as soon as the steps covering it are done (``rng`` unused: deterministic)."""
+    setup = setup_for_scene(scene, trajectory, config, engine, n_blocks, first_block)
+    state = new_state(setup)
+    k = first_block
+    for progress in iter_fdtd(setup, state, chunk_steps):
+        while k < first_block + n_blocks and progress.steps_done >= steps_needed(setup, k):
+            yield sim_block(setup, state, k)
+            k += 1
 
 
 def scene_walls(scene: SceneLike, density_kg_m3: float, c: float) -> tuple[FloatArray, FloatArray]:
@@ -885,17 +921,18 @@ def scene_walls(scene: SceneLike, density_kg_m3: float, c: float) -> tuple[Float
 
 
 def setup_for_scene(scene: SceneLike, trajectory: TrajectoryLike, sonar: SonarConfig,
-                    fdtd: FdtdConfig, n_blocks: int | None = None) -> FdtdSetup:
+                    fdtd: FdtdConfig, n_blocks: int | None = None,
+                    first_block: int = 0) -> FdtdSetup:
     """:func:`setup_fdtd` for a :class:`~mapping.scene.Scene`-like object."""
     seg, z = scene_walls(scene, fdtd.density_kg_m3, fdtd.speed(sonar))
-    return setup_fdtd(seg, z, trajectory, sonar, fdtd, n_blocks)
+    return setup_fdtd(seg, z, trajectory, sonar, fdtd, n_blocks, first_block)
 
 
 def run_meta(setup: FdtdSetup) -> dict[str, Any]:
     """Run-file ``meta`` of an FDTD run (engine, config, set-up report)."""
-    from dataclasses import asdict
-
-    return {"engine": "fdtd", "fdtd": asdict(setup.fdtd), "report": asdict(setup.report)}
+    return {"engine": "fdtd", "engine_config": setup.fdtd.to_dict(),
+            "fdtd_report": asdict(setup.report), "direct_path": False,
+            "path": getattr(setup.trajectory, "name", None)}
 
 
 def simulate_fdtd(scene: SceneLike, trajectory: TrajectoryLike, sonar: SonarConfig,
@@ -909,3 +946,39 @@ def simulate_fdtd(scene: SceneLike, trajectory: TrajectoryLike, sonar: SonarConf
     for _ in iter_fdtd(setup, state):
         pass
     return assemble_run(finished_blocks(setup, state), sonar, scene.to_json(), run_meta(setup))
+
+
+def setup_fingerprint(setup: FdtdSetup) -> str:
+    """Hash of everything that fixes the step sequence (a checkpoint resumes only onto an
+    identical set-up)."""
+    import hashlib
+    import json
+
+    key = {
+        "sonar": setup.sonar.to_json(), "fdtd": setup.fdtd.to_dict(), "shape": setup.grid.shape,
+        "origin": setup.grid.origin_m, "n_steps": setup.n_steps, "t_start": setup.t_start_s,
+        "segments": setup.segments_m.round(9).tolist(),
+        "impedance": [str(z) for z in setup.impedance_pa_s_m],
+        "path": path_position(setup.trajectory, np.linspace(setup.t_start_s, setup.t_start_s
+                                                            + setup.n_steps
+                                                            * setup.fdtd.time_step_s,
+                                                            64)).round(9).tolist(),
+        "first_block": setup.first_block,
+    }
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def default_chunk_steps(setup: FdtdSetup) -> int:
+    """Steps per progress report: about 3e8 cell updates (a second or two)."""
+    nx, ny = setup.grid.shape
+    return int(max(20, min(5000, 3e8 // (nx * ny))))
+
+
+def _register() -> None:
+    """Make ``FdtdConfig`` select this engine in :func:`mapping.simulate.iter_blocks`."""
+    from mapping.simulate import ENGINES
+
+    ENGINES.setdefault("fdtd", (FdtdConfig, iter_fdtd_blocks))
+
+
+_register()

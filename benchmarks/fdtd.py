@@ -1,0 +1,210 @@
+"""Benchmark of the FDTD engine (issue 4): cell updates per second of the fused numba kernel
+and its numpy twin, float32/float64, 1 and 2 threads, on 500^2 and 1000^2 grids with a
+24-cell PML; the memory-bandwidth ceiling (copy and triad over grid-sized arrays) measured
+in the same process; the denormal guard on/off; seconds per simulated 1.023 s block of the
+paper scene (extrapolated from a short run).
+
+A "cell update" is p, qx and qy of one cell of one field for one step. The engine advances
+two fields (with and without walls), so one grid step is two cell updates; both counts are
+reported. Writes benchmarks/results/fdtd.json and fdtd.png. Runs in about two minutes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+# benchmarks/mapping.py would shadow the mapping package when run as a script
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+sys.path.insert(0, str(_HERE.parent))
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
+
+from mapping.path import builtin_path  # noqa: E402
+from mapping.scene import builtin_scene  # noqa: E402
+from mapping.signal import SonarConfig  # noqa: E402
+from mapping.simulate.fdtd import (  # noqa: E402
+    FdtdConfig,
+    FdtdGrid,
+    FdtdSolver,
+    new_state,
+    setup_for_scene,
+)
+
+OUT = Path(__file__).resolve().parent / "results"
+C = 340.0
+
+
+@njit(parallel=True, cache=True)
+def _triad(a: np.ndarray, b: np.ndarray, c: np.ndarray, s: float) -> None:  # pragma: no cover
+    for i in prange(a.size):
+        a[i] = b[i] + s * c[i]
+
+
+@njit(parallel=True, cache=True)
+def _copy(a: np.ndarray, b: np.ndarray) -> None:  # pragma: no cover
+    for i in prange(a.size):
+        a[i] = b[i]
+
+
+def _best(fn: Any, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)) if repeats > 2 else float(min(times))
+
+
+def bandwidth(n_cells: int, dtype: str, threads: int) -> dict[str, float]:
+    """Copy and triad GB/s over arrays of ``n_cells`` elements (numba, ``threads``)."""
+    numba.set_num_threads(threads)
+    a, b, c = (np.ones(n_cells, dtype=dtype) for _ in range(3))
+    _triad(a, b, c, 0.5)
+    _copy(a, b)
+    reps = 20
+    t_triad = _best(lambda: [_triad(a, b, c, 0.5) for _ in range(reps)], 3) / reps
+    t_copy = _best(lambda: [_copy(a, b) for _ in range(reps)], 3) / reps
+    nb = a.nbytes
+    return {"copy_GB_s": 2 * nb / t_copy / 1e9, "triad_GB_s": 3 * nb / t_triad / 1e9}
+
+
+def _solver(n: int, dtype: str, backend: str, n_fields: int, guard: bool = True) -> FdtdSolver:
+    cfg = FdtdConfig(pml_cells=24, dtype=dtype, denormal_guard=guard)
+    grid = FdtdGrid(origin_m=(0.0, 0.0), shape=(n, n), grid_step_m=0.005, pml_cells=24)
+    return FdtdSolver(grid, cfg, C, None, n_fields, backend)
+
+
+def _kick(s: FdtdSolver, n_steps: int) -> None:
+    centre = np.array(s.grid.origin_m) + s.grid.shape[0] // 2 * s.grid.grid_step_m
+    g = np.zeros(n_steps)
+    g[: min(10, n_steps)] = 1.0
+    s.run_static(centre, centre + 0.05, g)
+
+
+def kernel_rate(n: int, dtype: str, backend: str, threads: int, n_fields: int,
+                steps: int) -> float:
+    """Grid cells x steps per second (one field-cell update per field)."""
+    numba.set_num_threads(threads)
+    s = _solver(n, dtype, backend, n_fields)
+    _kick(s, 2)
+    t = _best(lambda: _kick(s, steps), 3)
+    return n * n * steps / t
+
+
+def denormal_effect(n: int, steps: int) -> dict[str, float]:
+    """Rate with and without the denormal guard after a pulse has spread (float32, 1 thread)."""
+    numba.set_num_threads(1)
+    out = {}
+    for guard in (True, False):
+        s = _solver(n, "float32", "numba", 1, guard)
+        _kick(s, 400)
+        tiny = np.abs(s.p[0] - s.offset)
+        out[f"subnormal_fraction_guard_{guard}"] = float(
+            np.mean((tiny > 0) & (tiny < np.finfo(np.float32).tiny)))
+        t = _best(lambda s=s: _kick(s, steps), 3)  # type: ignore[misc]
+        out[f"Mcell_s_guard_{guard}"] = n * n * steps / t / 1e6
+    out["slowdown_without_guard"] = out["Mcell_s_guard_True"] / out["Mcell_s_guard_False"]
+    return out
+
+
+def paper_block_seconds(threads: int, steps: int) -> dict[str, Any]:
+    """Seconds per simulated 1.023 s block of the paper scene on the Table 2 grid."""
+    numba.set_num_threads(threads)
+    sonar = SonarConfig()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        setup = setup_for_scene(builtin_scene("paper"), builtin_path("paper-a"), sonar,
+                                FdtdConfig(), n_blocks=1)
+    state = new_state(setup)
+    from mapping.simulate.fdtd import advance
+
+    advance(setup, state, 2)
+    t = time.perf_counter()
+    advance(setup, state, steps)
+    per_step = (time.perf_counter() - t) / steps
+    steps_per_block = sonar.block_s / setup.fdtd.time_step_s
+    nx, ny = setup.grid.shape
+    return {"grid": [nx, ny], "threads": threads, "steps_timed": steps,
+            "seconds_per_step": per_step, "steps_per_block": steps_per_block,
+            "seconds_per_block": per_step * steps_per_block,
+            "grid_Mcell_s": nx * ny / per_step / 1e6,
+            "field_Mcell_s": 2 * nx * ny / per_step / 1e6}
+
+
+def main() -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    res: dict[str, Any] = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(),
+                           "numba": numba.__version__}
+    rows = []
+    for n, steps in ((500, 20), (1000, 5)):
+        for dtype in ("float32", "float64"):
+            item = np.dtype(dtype).itemsize
+            for threads in (1, 2):
+                bw = bandwidth(n * n, dtype, threads)
+                for nf in (1, 2):
+                    rate = kernel_rate(n, dtype, "numba", threads, nf, steps)
+                    field_rate = rate * nf
+                    moved = field_rate * 6 * item / 1e9  # p, qx, qy read + written
+                    rows.append({"n": n, "dtype": dtype, "threads": threads, "fields": nf,
+                                 "backend": "numba", "grid_Mcell_s": rate / 1e6,
+                                 "field_Mcell_s": field_rate / 1e6,
+                                 "GB_s_moved_estimate": moved, **bw,
+                                 "fraction_of_triad": moved / bw["triad_GB_s"]})
+                    print(rows[-1])
+            rate = kernel_rate(n, dtype, "numpy", 1, 1, 2)
+            rows.append({"n": n, "dtype": dtype, "threads": 1, "fields": 1, "backend": "numpy",
+                         "grid_Mcell_s": rate / 1e6, "field_Mcell_s": rate / 1e6})
+            print(rows[-1])
+    res["kernels"] = rows
+    for r in rows:
+        if r["backend"] == "numba" and r["fields"] == 1:
+            base = next(x for x in rows if x["backend"] == "numpy" and x["n"] == r["n"]
+                        and x["dtype"] == r["dtype"])
+            r["speedup_vs_numpy"] = r["field_Mcell_s"] / base["field_Mcell_s"]
+    res["denormals"] = denormal_effect(500, 20)
+    print(res["denormals"])
+    res["paper_block"] = [paper_block_seconds(th, 6) for th in (1, 2)]
+    print(res["paper_block"])
+    res["load_average_end"] = os.getloadavg()
+    res["wall_s"] = time.perf_counter() - t0
+    (OUT / "fdtd.json").write_text(json.dumps(res, indent=2))
+    _plot(res)
+
+
+def _plot(res: dict[str, Any]) -> None:
+    rows = [r for r in res["kernels"]]
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    labels = [f"{r['backend']} {r['n']}² {r['dtype'][5:]} {r['threads']}t {r['fields']}f"
+              for r in rows]
+    colors = ["tab:blue" if r["backend"] == "numba" else "tab:gray" for r in rows]
+    ax.bar(range(len(rows)), [r["field_Mcell_s"] for r in rows], color=colors)
+    for i, r in enumerate(rows):
+        if "triad_GB_s" in r:
+            ceiling = r["triad_GB_s"] * 1e9 / (6 * (4 if r["dtype"] == "float32" else 8)) / 1e6
+            ax.plot([i - 0.4, i + 0.4], [ceiling] * 2, color="tab:red", lw=1.5)
+    ax.set_xticks(range(len(rows)), labels, rotation=75, fontsize=7)
+    ax.set_ylabel("field-cell updates / s (M)")
+    ax.set_yscale("log")
+    la = res["load_average_start"]
+    ax.set_title(f"FDTD kernel (24-cell PML); red: triad-bandwidth ceiling at 24/48 B per "
+                 f"update; load average {la[0]:.1f} on {res['cpus']} CPUs", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(OUT / "fdtd.png", dpi=120)
+
+
+if __name__ == "__main__":
+    main()
