@@ -308,6 +308,13 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=0.1, help="path speed in m/s (default 0.1)")
     p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
     p.add_argument("--out", required=True, help="output run file (.npz)")
+    fd = p.add_argument_group("--engine fdtd (issue 4)")
+    fd.add_argument("--grid-step", type=float, default=0.005, help="FDTD dx in m (Table 2)")
+    fd.add_argument("--time-step", type=float, default=1 / 120_000, help="FDTD dt in s")
+    fd.add_argument("--float64", action="store_true", help="float64 fields (default float32)")
+    fd.add_argument("--checkpoint-minutes", type=float, default=5.0,
+                    help="write OUT.checkpoint.npz this often (default 5)")
+    fd.add_argument("--resume", action="store_true", help="continue from OUT.checkpoint.npz")
     p.set_defaults(func=_cmd_simulate)
 
 
@@ -343,6 +350,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         n_blocks = max(1, math.ceil(seconds / config.block_s - 1e-9))
     if n_blocks < 1:
         raise ValueError(f"--blocks must be >= 1, got {n_blocks}")
+    if args.engine == "fdtd":
+        return _simulate_fdtd(args, scene, trajectory, config, n_blocks)
     engine = _engine_config(args)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
@@ -361,6 +370,69 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {n_blocks} blocks ({n_blocks * config.block_s:.1f} s) of "
           f"{trajectory.name} in {scene.name}, engine {meta['engine']}, order "
           f"{meta.get('order')}, {elapsed:.1f} s")
+    return 0
+
+
+def _simulate_fdtd(args: argparse.Namespace, scene: object, trajectory: object,
+                   config: SonarConfig, n_blocks: int) -> int:
+    """``simulate --engine fdtd``: set-up report, progress with ETA, atomic checkpoints every
+    ``--checkpoint-minutes`` (and on Ctrl-C), ``--resume``; the run file is written last."""
+    import time
+
+    from tqdm import tqdm
+
+    from mapping.runfile import atomic_savez, write_run
+    from mapping.simulate.base import assemble_run
+    from mapping.simulate.fdtd import (
+        FdtdConfig,
+        default_chunk_steps,
+        finished_blocks,
+        iter_fdtd,
+        new_state,
+        restore_state,
+        run_meta,
+        setup_fingerprint,
+        setup_for_scene,
+    )
+
+    fdtd = FdtdConfig(grid_step_m=args.grid_step, time_step_s=args.time_step,
+                      dtype="float64" if args.float64 else "float32")
+    setup = setup_for_scene(scene, trajectory, config, fdtd, n_blocks)  # type: ignore[arg-type]
+    for line in setup.report.lines():
+        print(line)
+    out = Path(args.out)
+    ckpt = out.with_name(out.name + ".checkpoint.npz")
+    tag = setup_fingerprint(setup)
+    state = new_state(setup)
+    if args.resume and ckpt.exists():
+        with np.load(ckpt, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+        if str(arrays.get("fingerprint")) != tag:
+            raise ValueError(f"{ckpt} belongs to a different set-up; delete it or drop --resume")
+        state = restore_state(setup, arrays)
+        print(f"resumed at step {state.step} of {setup.n_steps}")
+
+    def save() -> None:
+        atomic_savez(ckpt, {**state.to_arrays(), "fingerprint": np.array(tag)})
+
+    last = time.monotonic()
+    try:
+        with tqdm(total=setup.n_steps, initial=state.step, unit="step", desc="fdtd") as bar:
+            for progress in iter_fdtd(setup, state, default_chunk_steps(setup)):
+                bar.update(progress.steps_done - bar.n)
+                if time.monotonic() - last > 60 * args.checkpoint_minutes:
+                    save()
+                    last = time.monotonic()
+    except KeyboardInterrupt:
+        save()
+        print(f"interrupted at step {state.step}; checkpoint {ckpt}; rerun with --resume",
+              file=sys.stderr)
+        return 130
+    run = assemble_run(finished_blocks(setup, state), config,
+                       scene.to_json(), run_meta(setup))  # type: ignore[attr-defined]
+    written = write_run(out, run)
+    ckpt.unlink(missing_ok=True)
+    print(f"wrote {written}: {n_blocks} blocks, engine fdtd, grid {setup.grid.shape}")
     return 0
 
 
