@@ -198,3 +198,56 @@ def summarize(
         converged=bool(best.weight >= config.converged_weight and compact),
         direction_observable=direction_observable, updated=updated, model=model,
     )
+
+
+@dataclass(frozen=True)
+class TrackMetrics:
+    """Errors of a pose track against tracked truth.
+
+    Attributes
+    ----------
+    n_blocks : int
+        Blocks with truth.
+    blocks_to_converge : int or None
+        First block from which every estimate stays within ``tol_m`` and ``tol_rad`` of the
+        truth (None: never).
+    position_rmse_m, heading_rmse_rad : float
+        RMSE over the blocks from ``blocks_to_converge`` on (NaN if never converged).
+    share_within_tol : float
+        Share of all blocks with position error <= ``tol_m``.
+    nees_mean : float
+        Mean NEES (3 dof; ~3 when the covariance is honest) after convergence.
+    """
+
+    n_blocks: int
+    blocks_to_converge: int | None
+    position_rmse_m: float
+    heading_rmse_rad: float
+    share_within_tol: float
+    nees_mean: float
+
+
+def track_metrics(poses: FloatArray, covs: FloatArray, truth: FloatArray,
+                  tol_m: float = 0.1, tol_rad: float = math.radians(10.0)) -> TrackMetrics:
+    """:class:`TrackMetrics` of estimated ``poses`` (n, 3) with ``covs`` (n, 3, 3) against
+    ``truth`` (n, 3); rows with NaN truth are skipped."""
+    ok = np.isfinite(truth).all(axis=1)
+    poses, covs, truth = poses[ok], covs[ok], truth[ok]
+    err = np.array([pose_error(p, t) for p, t in zip(poses, truth, strict=True)]).reshape(-1, 2)
+    good = (err[:, 0] <= tol_m) & (err[:, 1] <= tol_rad)
+    bad = np.flatnonzero(~good)
+    start = 0 if bad.size == 0 else int(bad[-1]) + 1
+    n = int(truth.shape[0])
+    if start >= n:
+        return TrackMetrics(n, None, math.nan, math.nan,
+                            float(np.mean(err[:, 0] <= tol_m)) if n else math.nan, math.nan)
+    tail = err[start:]
+    nees_vals = [nees(p, c, t) for p, c, t in zip(poses[start:], covs[start:], truth[start:],
+                                                  strict=True)]
+    return TrackMetrics(
+        n_blocks=n, blocks_to_converge=start,
+        position_rmse_m=float(np.sqrt(np.mean(tail[:, 0] ** 2))),
+        heading_rmse_rad=float(np.sqrt(np.mean(tail[:, 1] ** 2))),
+        share_within_tol=float(np.mean(err[:, 0] <= tol_m)),
+        nees_mean=float(np.mean(nees_vals)),
+    )

@@ -21,9 +21,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -382,3 +382,34 @@ class ParticleFilter:
         pf.log_w_slow, pf.log_w_fast = (float(v) for v in state["log_w_slow_fast"])
         pf.n_steps = int(state["n_steps"])
         return pf
+
+
+# ---- running a filter over a run -----------------------------------------------------------
+class Steppable(Protocol):
+    """Anything with the filters' ``step`` (ParticleFilter, GridFilter)."""
+
+    def step(self, heat_map: HeatMap | None, speed_m_s: float, yaw_rate_rad_s: float,
+             dt_s: float) -> PoseEstimate: ...
+
+
+def block_odometry(speed_m_s: FloatArray, yaw_rate_rad_s: FloatArray, t_s: FloatArray,
+                   block_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Odometry from each block's midpoint to the next: mean speed and yaw rate of the two
+    blocks and the time between midpoints (0 for the first block)."""
+    v = np.asarray(speed_m_s, dtype=np.float64)
+    w = np.asarray(yaw_rate_rad_s, dtype=np.float64)
+    mid = np.asarray(t_s, dtype=np.float64) + 0.5 * block_s
+    v_step = np.concatenate([[v[0]], 0.5 * (v[1:] + v[:-1])])
+    w_step = np.concatenate([[w[0]], 0.5 * (w[1:] + w[:-1])])
+    dt = np.concatenate([[0.0], np.diff(mid)])
+    return v_step, w_step, dt
+
+
+def run_filter(filt: Steppable, heat_maps: Iterable[HeatMap | None], speed_m_s: FloatArray,
+               yaw_rate_rad_s: FloatArray, t_s: FloatArray, block_s: float
+               ) -> Iterator[PoseEstimate]:
+    """Step ``filt`` through a run's blocks, yielding one estimate per block (a generator:
+    the caller decides what to keep). A None heat map predicts only."""
+    v, w, dt = block_odometry(speed_m_s, yaw_rate_rad_s, t_s, block_s)
+    for k, hm in enumerate(heat_maps):
+        yield filt.step(hm, float(v[k]), float(w[k]), float(dt[k]))

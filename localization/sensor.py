@@ -304,28 +304,41 @@ def _offsets(config: SensorConfig, res: float, nx_pad: int) -> NDArray[np.int32]
 
 
 def free_space_mask(
-    wall_map: WallMap, wall_quantile: float = 0.98, wall_fraction: float = 0.3,
-    clearance_m: float = 0.15,
+    wall_map: WallMap, wall_quantile: float = 0.999, wall_fraction: float = 0.5,
+    clearance_m: float = 0.15, margin_m: float = 1.0,
 ) -> NDArray[np.bool_]:
-    """Cells where a robot can stand: away from walls and, if walls enclose it, inside.
+    """Cells where a robot can stand: the mapped region, away from strong walls.
 
-    A cell is a wall when G exceeds ``wall_fraction`` of G's ``wall_quantile``; free cells
-    are at least ``clearance_m`` from every wall cell. Free regions touching the map border
-    (outside the room) are dropped unless that would leave nothing.
+    The mapped region is where the mapping robot drove: a map built by
+    :mod:`mapping.grid` covers the mapping poses plus ``params["grid"]["radius_m"]``, so the
+    map's extent shrunk by that radius (then grown by ``margin_m``) bounds them. Within it,
+    a cell is a wall when G exceeds ``wall_fraction`` of G's ``wall_quantile`` (only the
+    strongest walls: back-projection arcs and the near-range blob along the path stay
+    free), and free cells keep ``clearance_m`` from every wall cell.
     """
+    ny, nx = wall_map.shape
+    mask = np.ones((ny, nx), dtype=bool)
+    radius = wall_map.params.get("grid", {}).get("radius_m") if isinstance(
+        wall_map.params.get("grid"), dict) else None
+    if isinstance(radius, int | float) and radius > margin_m:
+        k = int((radius - margin_m) / wall_map.resolution_m)
+        if 2 * k < min(ny, nx):
+            mask[:] = False
+            mask[k:ny - k, k:nx - k] = True
     g = ndimage.gaussian_filter(wall_map.G.astype(np.float64), 1.0)
-    level = float(np.quantile(g, wall_quantile))
-    if level <= 0:
-        return np.ones(wall_map.shape, dtype=bool)
-    wall = g > wall_fraction * level
-    dist = ndimage.distance_transform_edt(~wall) * wall_map.resolution_m
-    free = dist >= clearance_m
-    labels, n = ndimage.label(free)
+    level = float(np.quantile(g[mask], wall_quantile))
+    if level > 0:
+        wall = g > wall_fraction * level
+        dist = ndimage.distance_transform_edt(~wall) * wall_map.resolution_m
+        free = mask & (dist >= clearance_m)
+        if free.sum() >= 0.05 * mask.sum():
+            mask = free
+    labels, _ = ndimage.label(mask)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    inside = free & ~np.isin(labels, border[border > 0])
-    if inside.sum() >= 0.02 * free.sum() and inside.any():
-        return np.asarray(inside)
-    return np.asarray(free if free.any() else np.ones(wall_map.shape, dtype=bool))
+    inside = mask & ~np.isin(labels, border[border > 0])
+    if inside.sum() >= 0.05 * mask.sum():
+        mask = inside          # walls enclose a region: the robot is inside it
+    return np.asarray(mask)
 
 
 # ---- measurement --------------------------------------------------------------------------
@@ -385,8 +398,8 @@ def prepare_measurement(heat_map: HeatMap, config: SensorConfig) -> Measurement:
     The heat map's columns are averaged into the range bins and multiplied by
     ``r ** range_gain_exponent``. Correlation model: rows interpolated at ``|phi_j|`` (the
     mirror fold; ``pi - |phi_j|`` when reversing, since the heat map's angles are measured
-    from the direction of travel) and the noise floor (the ``1 - keep_fraction`` quantile) removed. Range
-    model: the maximum over directions, zero mean and unit norm.
+    from the direction of travel) and the noise floor (the ``1 - keep_fraction`` quantile)
+    removed. Range model: the maximum over directions, zero mean and unit norm.
 
     Raises
     ------

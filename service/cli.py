@@ -11,7 +11,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -618,6 +618,105 @@ def _cmd_evaluate_map(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---- localize (issue 6) ---------------------------------------------------------------
+def _add_localize(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("localize", help="localize a run on a wall map (paper Fig. 1(b))")
+    p.add_argument("run", metavar="RUN.npz", help="run file to localize")
+    p.add_argument("--map", required=True, metavar="MAP.npz", help="wall map (omnisonar-map-1)")
+    p.add_argument("--filter", choices=("pf", "grid"), default="pf",
+                   help="particle filter (default) or exact grid filter")
+    p.add_argument("--particles", type=int, default=2000, help="particle count (pf)")
+    p.add_argument("--init", choices=("global", "tracked"), default="global",
+                   help="global (uniform over free space) or the run's first tracked pose")
+    p.add_argument("--model", choices=("correlation", "range"), default="correlation",
+                   help="sensor model")
+    p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
+    p.add_argument("--out", help="write the track as CSV")
+    p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
+    p.set_defaults(func=_cmd_localize)
+
+
+def _cmd_localize(args: argparse.Namespace) -> int:
+    import dataclasses
+    import json
+    import math
+
+    from localization.estimate import pose_error, track_metrics
+    from localization.grid_filter import GridFilter
+    from localization.particle_filter import FilterConfig, ParticleFilter, Steppable, run_filter
+    from localization.sensor import SensorConfig, build_tables, validate_block
+    from mapping.heatmap import heatmap_of_run
+    from mapping.mapfile import read_map
+    from mapping.runfile import read_run
+
+    if args.particles < 1:
+        raise ValueError(f"--particles must be >= 1, got {args.particles}")
+    wall_map, run = read_map(args.map), read_run(args.run)
+    tables = build_tables(wall_map, SensorConfig(model=args.model))
+    tracked = np.asarray(np.isfinite(run.pose).all(axis=1), dtype=bool)
+    if args.init == "tracked" and not tracked[0]:
+        raise ValueError("--init tracked needs a tracked pose in the run's first block")
+    pose0 = run.pose[0] if args.init == "tracked" else None
+    cov0 = np.diag([0.1**2, 0.1**2, math.radians(10.0) ** 2])
+    filt: Steppable
+    if args.filter == "grid":
+        filt = GridFilter(tables, pose=pose0, cov=cov0)
+    else:
+        filt = ParticleFilter(tables, FilterConfig(n_particles=args.particles),
+                              np.random.default_rng(args.seed), pose=pose0, cov=cov0)
+
+    def heat_maps():  # type: ignore[no-untyped-def]
+        for k in range(run.n_blocks):
+            try:
+                validate_block(run.samples[k], run.config.block_samples)
+            except ValueError as exc:
+                print(f"block {k}: {exc}; predicting only", file=sys.stderr)
+                yield None
+                continue
+            yield heatmap_of_run(run, k)
+
+    rows, poses, covs = [], [], []
+    if not args.json:
+        print("block      x_m      y_m  yaw_deg  sx_m  sy_m syaw_deg    ess conv modes"
+              "  err_m err_deg")
+    for k, est in enumerate(run_filter(filt, heat_maps(), run.speed_m_s, run.yaw_rate_rad_s,
+                                       run.t_s, run.config.block_s)):
+        sd = np.sqrt(np.clip(np.diag(est.cov), 0.0, None))
+        err = pose_error(est.pose, run.pose[k]) if tracked[k] else (math.nan, math.nan)
+        rows.append([k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
+                     int(est.direction_observable), *err])
+        poses.append(est.pose)
+        covs.append(est.cov)
+        if not args.json:
+            print(f"{k:5d} {est.pose[0]:8.3f} {est.pose[1]:8.3f} {math.degrees(est.pose[2]):8.1f}"
+                  f" {sd[0]:5.3f} {sd[1]:5.3f} {math.degrees(sd[2]):8.1f} {est.ess:6.0f}"
+                  f" {int(est.converged):4d} {len(est.modes):5d} {err[0]:6.3f}"
+                  f" {math.degrees(err[1]):7.1f}")
+    summary: dict[str, Any] = {"run": args.run, "map": args.map, "filter": args.filter,
+                                  "init": args.init, "model": args.model,
+                                  "n_blocks": run.n_blocks}
+    if tracked.any():
+        m = track_metrics(np.array(poses), np.array(covs), run.pose)
+        summary.update(dataclasses.asdict(m))
+        summary["heading_rmse_deg"] = math.degrees(m.heading_rmse_rad)
+    if args.out:
+        header = ("block,x_m,y_m,yaw_rad,std_x_m,std_y_m,std_yaw_rad,ess,converged,n_modes,"
+                  "direction_observable,err_m,err_rad")
+        _atomic_write_bytes(Path(args.out), lambda tmp: np.savetxt(
+            tmp, np.array(rows, dtype=np.float64), delimiter=",", header=header, comments="",
+            fmt="%.6g"))
+    if args.json:
+        print(json.dumps(summary, indent=2, default=float))
+    elif tracked.any():
+        print(f"blocks to converge: {summary['blocks_to_converge']}; after convergence "
+              f"position RMSE {float(summary['position_rmse_m']) * 100:.1f} cm, heading RMSE "
+              f"{float(summary['heading_rmse_deg']):.1f} deg; within 10 cm: "
+              f"{float(summary['share_within_tol']) * 100:.0f} % of blocks")
+    if args.out:
+        print(f"wrote {args.out}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_scenes,
     _add_import_run,
@@ -631,6 +730,7 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_demo,
     _add_build_map,
     _add_evaluate_map,
+    _add_localize,
 ]
 
 

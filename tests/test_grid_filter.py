@@ -9,11 +9,17 @@ import pytest
 
 from localization.estimate import pose_error, weighted_mean_cov
 from localization.grid_filter import GridFilter, predict, state_poses
-from localization.motion import MotionNoise
+from localization.motion import MotionNoise, wrap_angle
 from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.sensor import SensorConfig, SensorTables, build_tables
 from mapping.heatmap import HeatMap
-from tests._localization_helpers import ASYMMETRIC_ROOM, rasterize, synthetic_heatmap, trajectory
+from tests._localization_helpers import (
+    ASYMMETRIC_ROOM,
+    CORRIDOR,
+    rasterize,
+    synthetic_heatmap,
+    trajectory,
+)
 
 DT = 1.023
 ODO = [(0.2, 0.0)] * 3 + [(0.2, 0.35)] * 4 + [(0.2, 0.0)] * 2
@@ -125,3 +131,20 @@ def test_state_round_trip(tables: SensorTables, run: tuple[np.ndarray, list[Heat
         GridFilter.from_state_dict({"format": np.array("omnisonar-grid-state-1"),
                                     "belief": np.zeros((2, 2, 2)), "n_steps": np.array(0)},
                                    tables)
+
+
+def test_grid_holds_symmetric_modes_equal() -> None:
+    """Corridor, rotation symmetric: the exact filter keeps both images at 0.5 +- 0.05."""
+    tables = build_tables(rasterize(CORRIDOR), SensorConfig(max_range_m=4.5))
+    odo = [(0.2, 0.0)] * 3 + [(0.2, 0.25)] * 4
+    truth = trajectory(np.array([1.2, 0.5, 0.0]), odo, DT)
+    rng = np.random.default_rng(12)
+    gf = GridFilter(tables)
+    for k in range(len(truth)):
+        v, w = odo[k - 1] if k else (0.2, 0.0)
+        est = gf.step(synthetic_heatmap(CORRIDOR, truth[k], 0.2, rng), v, w, DT if k else 0.0)
+    p = truth[-1]
+    images = [p, np.array([6.0 - p[0], 1.6 - p[1], float(wrap_angle(p[2] + np.pi))])]
+    for image in images:
+        near = [m for m in est.modes if pose_error(m.mean, image)[0] <= 0.1]
+        assert near and near[0].weight == pytest.approx(0.5, abs=0.05)
