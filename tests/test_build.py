@@ -97,3 +97,31 @@ def test_dask_local_cluster_matches_processes() -> None:
         with distributed.Client(cluster) as client:
             wm = build_map(sources, params, client=client)
     assert np.array_equal(wm.G, ref.G)
+
+
+def test_cli_build_and_evaluate_map(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from mapping.mapfile import read_map
+    from mapping.runfile import write_run
+    from service.cli import main
+
+    runs = _small_runs()
+    paths = [write_run(tmp_path / f"r{i}.npz", r) for i, r in enumerate(runs[:2])]
+    out = tmp_path / "m.npz"
+    code = main(["build-map", *map(str, paths), "--out", str(out), "--radius-m", "1.5",
+                 "--png", str(tmp_path / "m.png"), "--pgm", str(tmp_path / "m.pgm")])
+    assert code == 0
+    wm = read_map(out)
+    assert wm.method == "paper" and len(wm.provenance["runs"]) == 2
+    assert all(len(r["sha256"]) == 64 for r in wm.provenance["runs"])
+    assert (tmp_path / "m.png").stat().st_size > 0 and (tmp_path / "m.yaml").exists()
+    capsys.readouterr()
+    assert main(["evaluate-map", str(out), "--scene", "builtin:shoebox", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert 0 <= report["ghost_energy"] <= 1 and len(report["at"]) == 3
+    other = synthetic_run(SonarConfig(sequence_length=127, repetitions=2), Wall(1.0, 1.0), 0.5,
+                          n_blocks=2)
+    p3 = write_run(tmp_path / "other.npz", other)
+    assert main(["build-map", str(paths[0]), str(p3), "--out", str(out)]) == 2
+    assert "different sonar configs" in capsys.readouterr().err
