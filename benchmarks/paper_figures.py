@@ -37,6 +37,7 @@ from mapping.quality import evaluate  # noqa: E402
 from mapping.reconstruct import (  # noqa: E402
     InverseParams,
     observations_from_heatmaps,
+    prune_speckle,
     reconstruct_inverse,
 )
 from mapping.runfile import Run, read_run, write_run  # noqa: E402
@@ -72,9 +73,10 @@ def simulated_run(path_name: str, repetitions: int = 10, snr_db: float | None = 
     return run
 
 
-def maps_for(run: Run) -> tuple[list[Any], WallMap, WallMap, dict[str, float]]:
-    """Heat maps, the paper's map and the inverse map of one run, with timings."""
-    grid, inv = GridParams(), InverseParams()
+def maps_for(run: Run) -> tuple[list[Any], WallMap, WallMap, WallMap, dict[str, float]]:
+    """Heat maps, the paper's map, the inverse map and the inverse map without speckle pruning
+    of one run, with timings."""
+    grid, inv = GridParams(), InverseParams(prune_fraction=0.0)
     t0 = time.perf_counter()
     hms = list(run_heatmaps(run))
     t1 = time.perf_counter()
@@ -84,9 +86,11 @@ def maps_for(run: Run) -> tuple[list[Any], WallMap, WallMap, dict[str, float]]:
     Gi, _ = reconstruct_inverse(obs, extent, grid, inv)
     t3 = time.perf_counter()
     paper = WallMap(G, extent.origin_m, extent.resolution_m, method="paper")
-    inverse = WallMap(Gi, extent.origin_m, extent.resolution_m, method="inverse")
-    return hms, paper, inverse, {"heatmaps_s": t1 - t0, "paper_s": t2 - t1,
-                                 "inverse_s": t3 - t2}
+    raw = WallMap(Gi, extent.origin_m, extent.resolution_m, method="inverse_unpruned")
+    pruned, _ = prune_speckle(Gi, InverseParams().prune_fraction)
+    inverse = WallMap(pruned, extent.origin_m, extent.resolution_m, method="inverse")
+    return hms, paper, inverse, raw, {"heatmaps_s": t1 - t0, "paper_s": t2 - t1,
+                                      "inverse_s": t3 - t2}
 
 
 def quality_row(wm: WallMap, segments: np.ndarray) -> dict[str, Any]:
@@ -180,14 +184,15 @@ def main() -> None:
         run = simulated_run(path_name, m, snr)
         assert run.scene is not None
         segments = Scene.from_json(run.scene).segments()
-        hms, paper, inverse, times = maps_for(run)
+        hms, paper, inverse, raw, times = maps_for(run)
         heatmaps[label] = hms
         segments_of[label] = segments
         entries[label] = (label, run, paper, inverse)
         table[label] = {"run": {"path": path_name, "M": m, "snr_db": snr,
                                 "blocks": run.n_blocks},
                         "paper": quality_row(paper, segments),
-                        "inverse": quality_row(inverse, segments), "timing_s": times}
+                        "inverse": quality_row(inverse, segments),
+                        "inverse_unpruned": quality_row(raw, segments), "timing_s": times}
         table[label]["ghost_ratio_paper_over_inverse"] = (
             table[label]["paper"]["ghost_energy"]
             / max(table[label]["inverse"]["ghost_energy"], 1e-12))
