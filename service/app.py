@@ -61,6 +61,7 @@ def create_app(settings: Settings | None = None, factory: FactoryMaker | None = 
         store = SessionStore(
             cfg.sessions_path if cfg.checkpoint else None, cfg.max_sessions,
             cfg.session_idle_s, (factory or _default_factory)(maps),
+            fsync=cfg.checkpoint_fsync,
         )
         loaded, skipped = await run_in_threadpool(store.reload)
         if loaded or skipped:

@@ -29,6 +29,12 @@ def estimate_out(est: PoseEstimate) -> EstimateOut:
     def mat(a: NDArray[np.float64]) -> tuple[tuple[float, float, float], ...]:
         return tuple((float(r[0]), float(r[1]), float(r[2])) for r in np.asarray(a))
 
+    values = np.concatenate([np.ravel(est.pose), np.ravel(est.cov), np.ravel(est.cov_all),
+                             [est.ess]])
+    if not np.all(np.isfinite(values)):
+        # a numerical failure of the filter, not of the input: the store rolls the session
+        # back and the client gets a 500 naming it (JSON cannot carry NaN anyway)
+        raise FloatingPointError("the filter produced a non-finite estimate")
     return EstimateOut(
         pose=(float(est.pose[0]), float(est.pose[1]), float(est.pose[2])),
         covariance=mat(est.cov),

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -121,8 +122,12 @@ def unflatten_state(tree: Any, arrays: dict[str, NDArray[Any]]) -> Any:
     return tree
 
 
-def write_checkpoint(path: Path, session: Session) -> None:
-    """Write ``session`` (bookkeeping + filter state) atomically to ``path``."""
+def write_checkpoint(path: Path, session: Session, fsync: bool = True) -> None:
+    """Write ``session`` (bookkeeping + filter state) atomically to ``path``.
+
+    Always a temporary file renamed over the old one, so a killed process leaves either the
+    old or the new checkpoint. ``fsync`` also survives power loss (costs a disk flush).
+    """
     arrays, tree = flatten_state(session.tracker.state_dict())
     payload: dict[str, Any] = {
         "format": np.array(SESSION_FORMAT),
@@ -130,7 +135,18 @@ def write_checkpoint(path: Path, session: Session) -> None:
         "state": np.array(json.dumps(tree)),
         **arrays,
     }
-    atomic_savez(path, payload)
+    if fsync:
+        atomic_savez(path, payload)
+        return
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **payload)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
 def read_checkpoint(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -163,6 +179,8 @@ class SessionStore:
         Builds and restores trackers (the link to ``localization``).
     clock : callable
         Wall clock in seconds (injectable for tests).
+    fsync : bool
+        Flush each checkpoint to disk (survives power loss, not only a killed process).
     """
 
     def __init__(
@@ -172,8 +190,10 @@ class SessionStore:
         idle_s: float,
         factory: TrackerFactory,
         clock: Callable[[], float] = time.time,
+        fsync: bool = True,
     ) -> None:
         self.directory = directory
+        self.fsync = fsync
         self.max_sessions = max_sessions
         self.idle_s = idle_s
         self.factory = factory
@@ -308,7 +328,7 @@ class SessionStore:
     def _checkpoint(self, session: Session) -> None:
         path = self._path(session.id)
         if path is not None:
-            write_checkpoint(path, session)
+            write_checkpoint(path, session, self.fsync)
 
     def _remove_file(self, session_id: str) -> None:
         path = self._path(session_id)

@@ -19,6 +19,7 @@ OMNISONAR_MAX_PARTICLES   largest particle count a session may ask for (20000)
 OMNISONAR_MAX_BODY_BYTES  largest request body except map uploads (1 MiB)
 OMNISONAR_MAX_MAP_BYTES   largest map upload (64 MiB)
 OMNISONAR_CHECKPOINT      checkpoint sessions after every update (``true``)
+OMNISONAR_CHECKPOINT_FSYNC  fsync each checkpoint: survives power loss, not only a crash (``true``)
 ========================  ==================================================================
 """
 
@@ -48,6 +49,7 @@ class Settings(BaseSettings):
     max_body_bytes: Annotated[int, Field(ge=1024)] = 1 << 20
     max_map_bytes: Annotated[int, Field(ge=1024)] = 64 << 20
     checkpoint: bool = True
+    checkpoint_fsync: bool = True
 
     @property
     def sessions_path(self) -> Path:

@@ -387,3 +387,68 @@ def test_grid_filter_session(client: TestClient, settings: Settings) -> None:
     singular = client.post("/sessions", json={**TRACKED, "filter": "grid",
                                                "initial_covariance": [[0.0] * 3] * 3})
     assert singular.status_code == 422 and singular.json()["field"] == "initial_covariance"
+
+
+def _wait_job(client: TestClient, job_id: str, timeout_s: float = 120.0) -> dict[str, Any]:
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/jobs/{job_id}").json()
+        if job["status"] in ("done", "failed"):
+            return dict(job)
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} still running")
+
+
+def test_map_build_job(client: TestClient, settings: Settings) -> None:
+    from mapping.path import builtin_path
+    from mapping.runfile import write_run
+    from mapping.simulate import IsmConfig, simulate_run
+
+    run = simulate_run(builtin_scene("shoebox"), builtin_path("shoebox-curve"), CFG, 3,
+                       IsmConfig(order=2), np.random.default_rng(0))  # order 2: fast
+    write_run(settings.runs_path / "r1.npz", run)
+    r = client.post("/maps/build", json={"runs": ["r1"], "map_id": "built"})
+    assert r.status_code == 202, r.text
+    job = r.json()
+    assert r.headers["location"] == f"/jobs/{job['id']}" and job["map_id"] == "built"
+    done = _wait_job(client, job["id"])
+    assert done["status"] == "done" and done["progress"] == 1.0, done
+    info = client.get("/maps/built").json()
+    assert info["method"] == "paper" and info["provenance"]
+    again = client.post("/maps/build", json={"runs": ["r1"], "map_id": "built"})
+    assert again.status_code == 409
+    bad = client.post("/maps/build", json={"runs": ["r1"], "map_id": "x", "method": "magic"})
+    assert bad.status_code == 422 and bad.json()["field"] == "method"
+    sid = new_session(client, map_id="built", initial_pose={"x": 1.0, "y": 1.0, "yaw": 0.0})
+    assert post_raw(client, sid, 0, run.samples[0].tobytes(),
+                    speed_m_s=float(run.speed_m_s[0])).status_code == 200
+
+
+def test_default_map_built_in_background(settings: Settings,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    import functools
+
+    from service import builds
+
+    # the real job body on a 4-block run (the full one takes ~20 s)
+    monkeypatch.setattr(builds, "simulate_default_run",
+                        functools.partial(builds.simulate_default_run, n_blocks=4))
+    cfg = settings.model_copy(update={"default_map": True})
+    with TestClient(create_app(cfg)) as c:
+        building = c.get("/maps").json()["building"]
+        if building:  # still running: sessions on it are 503 with Retry-After
+            assert building == ["default"]
+            r = c.post("/sessions", json={**TRACKED, "map_id": "default"})
+            assert r.status_code in (503, 201)
+            if r.status_code == 503:
+                assert r.headers["retry-after"]
+        jobs = c.app.state.jobs  # type: ignore[attr-defined]
+        (job_id,) = list(jobs._jobs)
+        assert _wait_job(c, job_id)["status"] == "done"
+        info = c.get("/maps/default").json()
+        assert "paper-b" in info["provenance"]["runs"][0]["path"]
+    with TestClient(create_app(cfg)) as c:  # cached: no second build
+        assert c.get("/maps").json()["building"] == []
+        assert not c.app.state.jobs._jobs  # type: ignore[attr-defined]

@@ -210,3 +210,38 @@ def test_covariance_ros_layout() -> None:
     assert c6[0, 5] == 0.2 and c6[5, 1] == 0.3 and c6[0, 1] == 0.1
     assert np.all(c6[2:5, :] == 0) and np.all(c6[:, 2:5] == 0)
     assert EstimateOut.from_dict(est.to_dict()) == est
+
+
+def test_same_seq_from_many_threads_commits_once(tmp_path: Path) -> None:
+    import threading
+
+    store, _ = _store(tmp_path)
+    s = store.create("m", SPEC)
+    results: list[str] = []
+
+    def send() -> None:
+        try:
+            store.update(s.id, _block(1))
+            results.append("ok")
+        except SessionConflict:
+            results.append("409")
+
+    threads = [threading.Thread(target=send) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(results) == ["409"] * 7 + ["ok"]
+    assert s.n_updates == 1 and s.last_seq == 1
+
+
+def test_checkpoint_without_fsync_is_the_same_file(tmp_path: Path) -> None:
+    store, _ = _store(tmp_path)
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0))
+    from service.sessions import write_checkpoint
+
+    write_checkpoint(tmp_path / "a.npz", s, fsync=True)
+    write_checkpoint(tmp_path / "b.npz", s, fsync=False)
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
