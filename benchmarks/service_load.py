@@ -30,6 +30,7 @@ from typing import Any
 
 import httpx
 import matplotlib
+import matplotlib.ticker
 import numpy as np
 
 # benchmarks/mapping.py would shadow the mapping package: import from the repository root
@@ -210,6 +211,7 @@ def plot(cases: dict[str, Any], base: dict[str, float], path: Path) -> None:
     ax1.set_xlabel("latency per block (ms)")
     ax1.set_ylabel("CDF")
     ax1.set_xscale("log")
+    ax1.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax1.legend(fontsize=7)
     names = list(cases)
     ax2.bar(range(len(names)), [cases[n]["blocks_per_s"] for n in names])

@@ -270,8 +270,11 @@ class SessionStore:
         return gone
 
     # -- updates ------------------------------------------------------------------------
-    def update(self, session_id: str, block: BlockInput) -> Session:
+    def update(self, session_id: str, block: BlockInput) -> tuple[int, EstimateOut]:
         """Feed one block; commit (state + checkpoint) or leave the session untouched.
+
+        Returns the committed ``(seq, estimate)``, read under the session's lock (a later
+        request may already have moved the session on when the caller looks).
 
         Raises
         ------
@@ -283,7 +286,8 @@ class SessionStore:
             if session.last_seq is not None and block.seq <= session.last_seq:
                 raise SessionConflict(block.seq, session.last_seq)
             self._transact(session, lambda: self._apply(session, block))
-            return session
+            assert session.estimate is not None
+            return block.seq, session.estimate
 
     def reinit_global(self, session_id: str) -> Session:
         """Re-initialize the session's filter globally (kidnapped robot)."""

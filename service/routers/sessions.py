@@ -246,12 +246,11 @@ async def post_block(
                        speed_m_s=float(params[2]), yaw_rate_rad_s=float(params[3]))
     _check_fs(block.fs_hz, s.tracker.config)
     try:
-        s = await run_in_threadpool(store.update, session_id, block)
+        seq_done, est = await run_in_threadpool(store.update, session_id, block)
     except ValueError as exc:  # the core rejected the block; the session is unchanged
         raise ClientError(422, "validation", f"block rejected: {exc}", "samples",
                           None) from None
-    assert s.estimate is not None
-    return estimate_model(s.id, s.last_seq, s.estimate)
+    return estimate_model(session_id, seq_done, est)
 
 
 def _first(a: Any, b: Any, default: Any) -> Any:
