@@ -25,6 +25,10 @@ FloatArray = NDArray[np.float64]
 class MotionNoise:
     """Noise coefficients of the odometry model (AMCL's ``odom_alpha1..4``).
 
+    The defaults (translation std 7 % of the distance, rotation std 11 % of the distance in
+    rad/m) were calibrated with the sensor's ``beta`` on simulated runs with 0.005 m/s
+    odometry speed noise (benchmarks/localization.py); a real robot may need more.
+
     Parameters
     ----------
     alpha1 : float
@@ -42,10 +46,10 @@ class MotionNoise:
         Same floor for the two rotations.
     """
 
-    alpha1: float = 0.02
-    alpha2: float = 0.05
-    alpha3: float = 0.02
-    alpha4: float = 0.002
+    alpha1: float = 0.005
+    alpha2: float = 0.0125
+    alpha3: float = 0.005
+    alpha4: float = 0.0005
     min_trans_std_m: float = 0.005
     min_rot_std_rad: float = 0.005
 

@@ -99,7 +99,7 @@ class SensorConfig:
     max_range_m: float = 5.0
     n_headings: int = 144
     n_sub: int = 3
-    beta: float = 25.0
+    beta: float = 100.0
     z_rand: float = 0.05
     min_speed_m_s: float = 0.03
     map_blur_cells: float = 1.0
@@ -166,6 +166,8 @@ class SensorTables:
         Sum and sum of squares of the polar samples around each cell centre.
     ring : ndarray float32, shape (ny * nx, n_r)
         Polar samples around each cell centre summed over directions (range model).
+    active : tuple (iy0, iy1, ix0, ix1)
+        Cells where poses are scored (``s1``, ``s2``, ``ring`` filled); outside is off-map.
     pad : int
     shape : tuple (ny, nx) of the unpadded map
     origin_m, resolution_m : map geometry (see :class:`~mapping.wallmap.WallMap`)
@@ -179,6 +181,7 @@ class SensorTables:
     s1: FloatArray
     s2: FloatArray
     ring: NDArray[np.float32]
+    active: tuple[int, int, int, int]
     pad: int
     shape: tuple[int, int]
     origin_m: tuple[float, float]
@@ -231,7 +234,8 @@ class Measurement:
 
 # ---- tables -----------------------------------------------------------------------------
 def build_tables(
-    wall_map: WallMap, config: SensorConfig, free_mask: NDArray[np.bool_] | None = None
+    wall_map: WallMap, config: SensorConfig, free_mask: NDArray[np.bool_] | None = None,
+    active_margin_m: float = 1.0,
 ) -> SensorTables:
     """Precompute the polar lookup tables of ``wall_map``.
 
@@ -242,6 +246,9 @@ def build_tables(
     config : SensorConfig
     free_mask : ndarray of bool, shape G.shape, optional
         Cells a robot can occupy; default :func:`free_space_mask`.
+    active_margin_m : float
+        Poses are scored within the free cells' bounding box grown by this margin; poses
+        outside it count as off the map.
     """
     res = float(wall_map.resolution_m)
     ny, nx = wall_map.shape
@@ -258,23 +265,37 @@ def build_tables(
         raise ValueError(f"free_mask must have shape {(ny, nx)}, got {free_mask.shape}")
     offsets = _offsets(config, res, nx + 2 * pad)
     n_r = offsets.shape[1] // config.n_angles
-    s1, s2 = np.empty(ny * nx), np.empty(ny * nx)
-    ring = np.empty((ny * nx, n_r), dtype=np.float32)
+    s1, s2 = np.zeros(ny * nx), np.zeros(ny * nx)
+    ring = np.zeros((ny * nx, n_r), dtype=np.float32)
     centre = _centre_row(config)
-    cells = np.indices((ny, nx)).reshape(2, -1).T
+    active = _active_box(free_mask, int(math.ceil(active_margin_m / res)))
+    iy0, iy1, ix0, ix1 = active
+    cells = np.indices((iy1 - iy0, ix1 - ix0)).reshape(2, -1).T + np.array([iy0, ix0])
     g_flat = g_pad.ravel()
     for s in range(0, cells.shape[0], 1024):
         c = cells[s:s + 1024]
         base = (c[:, 0] + pad) * (nx + 2 * pad) + c[:, 1] + pad
         q = g_flat[base[:, None] + offsets[centre][None, :]].astype(np.float64)
-        s1[s:s + 1024] = q.sum(axis=1)
-        s2[s:s + 1024] = (q * q).sum(axis=1)
-        ring[s:s + 1024] = q.reshape(-1, n_r, config.n_angles).sum(axis=2)
+        flat = c[:, 0] * nx + c[:, 1]
+        s1[flat] = q.sum(axis=1)
+        s2[flat] = (q * q).sum(axis=1)
+        ring[flat] = q.reshape(-1, n_r, config.n_angles).sum(axis=2)
     return SensorTables(
-        config=config, g=g_flat, offsets=offsets, s1=s1, s2=s2, ring=ring, pad=pad,
+        config=config, g=g_flat, offsets=offsets, s1=s1, s2=s2, ring=ring, active=active,
+        pad=pad,
         shape=(ny, nx), origin_m=(float(wall_map.origin_m[0]), float(wall_map.origin_m[1])),
         resolution_m=res, free_mask=np.asarray(free_mask, dtype=bool),
     )
+
+
+def _active_box(free_mask: NDArray[np.bool_], margin: int) -> tuple[int, int, int, int]:
+    """(iy0, iy1, ix0, ix1): bounding box of the free cells grown by ``margin`` cells."""
+    ys, xs = np.nonzero(free_mask)
+    ny, nx = free_mask.shape
+    if ys.size == 0:
+        return (0, ny, 0, nx)
+    return (max(int(ys.min()) - margin, 0), min(int(ys.max()) + margin + 1, ny),
+            max(int(xs.min()) - margin, 0), min(int(xs.max()) + margin + 1, nx))
 
 
 def _centre_row(config: SensorConfig) -> int:
@@ -461,7 +482,8 @@ def _index(tables: SensorTables, poses: FloatArray
     sub = np.clip(np.floor((c - cell + 0.5) * cfg.n_sub), 0, cfg.n_sub - 1).astype(np.int64)
     ix, iy = cell[:, 0].astype(np.int64), cell[:, 1].astype(np.int64)
     ny, nx = tables.shape
-    on = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    iy0, iy1, ix0, ix1 = tables.active
+    on = (ix >= ix0) & (ix < ix1) & (iy >= iy0) & (iy < iy1)
     base = np.where(on, (iy + tables.pad) * tables.nx_pad + ix + tables.pad, 0)
     hb = np.rint(poses[:, 2] * cfg.n_headings / (2 * np.pi)).astype(np.int64) % cfg.n_headings
     lut = (hb * cfg.n_sub + sub[:, 1]) * cfg.n_sub + sub[:, 0]
