@@ -452,3 +452,17 @@ def test_default_map_built_in_background(settings: Settings,
     with TestClient(create_app(cfg)) as c:  # cached: no second build
         assert c.get("/maps").json()["building"] == []
         assert not c.app.state.jobs._jobs  # type: ignore[attr-defined]
+
+
+def test_idle_sessions_expire_in_the_background(settings: Settings) -> None:
+    import time
+
+    cfg = settings.model_copy(update={"session_idle_s": 0.5, "expiry_check_s": 0.1})
+    with TestClient(create_app(cfg)) as c:
+        sid = new_session(c)
+        assert (cfg.sessions_path / f"{sid}.npz").exists()
+        deadline = time.monotonic() + 10
+        while c.get("/health").json()["sessions"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert c.get(f"/sessions/{sid}").status_code == 404
+        assert not (cfg.sessions_path / f"{sid}.npz").exists()
