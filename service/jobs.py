@@ -3,6 +3,8 @@
 A job is a function ``work(progress)`` where ``progress(fraction, message)`` reports how far
 it got. The heavy lifting inside (e.g. :func:`mapping.build`) may itself use processes.
 Jobs live in memory: a restarted server forgets finished jobs (their maps are on disk).
+The worker is a daemon thread, so stopping the server does not wait for a running build
+(its map file is written atomically: an interrupted build leaves no file behind).
 """
 
 from __future__ import annotations
@@ -11,8 +13,9 @@ import secrets
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import asdict, dataclass
+from queue import Queue
 from typing import Any
 
 Progress = Callable[[float, str], None]
@@ -41,7 +44,10 @@ class JobRunner:
     """Runs jobs one at a time on a background thread and keeps their records."""
 
     def __init__(self, max_records: int = 200) -> None:
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="omnisonar-job")
+        self._queue: Queue[tuple[JobRecord, Callable[[Progress], object], Future[None]] | None]
+        self._queue = Queue()
+        self._worker = threading.Thread(target=self._loop, name="omnisonar-job", daemon=True)
+        self._worker.start()
         self._jobs: dict[str, JobRecord] = {}
         self._futures: dict[str, Future[None]] = {}
         self._lock = threading.Lock()
@@ -53,8 +59,16 @@ class JobRunner:
         with self._lock:
             self._prune()
             self._jobs[rec.id] = rec
-            self._futures[rec.id] = self._pool.submit(self._run, rec, work)
+            fut: Future[None] = Future()
+            self._futures[rec.id] = fut
+        self._queue.put((rec, work, fut))
         return rec
+
+    def _loop(self) -> None:
+        while (item := self._queue.get()) is not None:
+            rec, work, fut = item
+            self._run(rec, work)
+            fut.set_result(None)
 
     def _run(self, rec: JobRecord, work: Callable[[Progress], object]) -> None:
         def progress(fraction: float, message: str = "") -> None:
@@ -91,7 +105,10 @@ class JobRunner:
         return self.get(job_id)
 
     def shutdown(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        """Stop after the running job (queued ones are dropped); does not wait."""
+        while not self._queue.empty():
+            self._queue.get_nowait()
+        self._queue.put(None)
 
     def _prune(self) -> None:
         done = [j for j in self._jobs.values() if j.finished_at is not None]
