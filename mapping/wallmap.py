@@ -56,12 +56,14 @@ class WallMap:
     @property
     def x_m(self) -> NDArray[np.float64]:
         """Cell-centre x coordinates, shape (nx,)."""
-        return self.origin_m[0] + self.resolution_m * np.arange(self.G.shape[1])
+        return np.asarray(self.origin_m[0] + self.resolution_m * np.arange(self.G.shape[1]),
+                          dtype=np.float64)
 
     @property
     def y_m(self) -> NDArray[np.float64]:
         """Cell-centre y coordinates, shape (ny,)."""
-        return self.origin_m[1] + self.resolution_m * np.arange(self.G.shape[0])
+        return np.asarray(self.origin_m[1] + self.resolution_m * np.arange(self.G.shape[0]),
+                          dtype=np.float64)
 
     @property
     def extent_m(self) -> tuple[float, float, float, float]:
