@@ -69,9 +69,7 @@ class ImageSet:
 
     def positions(self, xy: FloatArray) -> FloatArray:
         """Image positions for robot positions ``xy`` (m, 2) -> (n, m, 2)."""
-        return np.einsum("nij,mj->nmi", self.A, np.asarray(xy, dtype=np.float64))[
-            :, :, :
-        ] + self.b[:, None, :]
+        return _apply(self.A, self.b, np.asarray(xy, dtype=np.float64))
 
 
 @dataclass(frozen=True)
@@ -97,6 +95,11 @@ class TraceResult:
     walls: IntArray
     reflection: FloatArray
     path_length_m: FloatArray
+
+
+def _apply(A: FloatArray, b: FloatArray, xy: FloatArray) -> FloatArray:
+    """Images ``A[n] x[m] + b[n]`` of points ``xy`` (m, 2) under maps (n, ...) -> (n, m, 2)."""
+    return np.asarray(xy[None] @ A.transpose(0, 2, 1) + b[:, None, :])
 
 
 def mirror_maps(segments: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -183,62 +186,70 @@ def candidate_images(
     if not max_path_m > 0:
         raise ValueError(f"max_path_m must be > 0, got {max_path_m}")
     pos = np.asarray(positions_m, dtype=np.float64).reshape(-1, 2)
+    m = pos.shape[0]
     WA, Wb = mirror_maps(seg)
+    lengths = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
     seen: set[tuple[float, ...]] = set()
     out_A: list[FloatArray] = []
     out_b: list[FloatArray] = []
     out_order: list[int] = []
     out_walls: list[tuple[int, ...]] = []
-    all_idx = np.arange(pos.shape[0])
-    # node: map (A, b), wall sequence, alive position indices, aperture end points there
-    frontier: list[_Node] = [(np.eye(2), np.zeros(2), (), all_idx, pos, pos)]
+    # the frontier, as arrays over nodes: map, last wall, alive positions, apertures
+    A = np.eye(2)[None]
+    b = np.zeros((1, 2))
+    last = np.array([-1])
+    walls: list[tuple[int, ...]] = [()]
+    alive = np.ones((1, m), dtype=bool)
+    ap0 = ap1 = np.zeros((1, m, 2))
     reached = 0
     for order in range(1, max_order + 1):
-        new_frontier: list[_Node] = []
-        for A, b, walls, alive, ap0, ap1 in frontier:
-            source = pos[alive] @ A.T + b  # the parent image at the alive positions
-            for w in range(seg.shape[0]):
-                if walls and walls[-1] == w:
-                    continue
-                A2 = WA[w] @ A
-                b2 = WA[w] @ b + Wb[w]
-                key = _map_key(A2, b2)
-                if key == _IDENTITY_KEY:
-                    continue  # the robot itself: the direct path is not an echo
-                x = pos[alive]
-                keep = np.linalg.norm(x @ A2.T + b2 - x, axis=1) <= max_path_m
-                if walls:
-                    lo, hi, ok = _clip_beam(source, ap0, ap1, seg[w])
-                else:
-                    lo, hi = np.zeros(alive.size), np.ones(alive.size)
-                    ok = np.ones(alive.size, dtype=bool)
+        source = _apply(A, b, pos)  # parent images
+        kids: list[tuple[FloatArray, ...]] = []
+        kid_walls: list[tuple[int, ...]] = []
+        for w in range(seg.shape[0]):
+            A2 = WA[w] @ A
+            b2 = b @ WA[w].T + Wb[w]
+            img = _apply(A2, b2, pos)
+            keep = alive & (last != w)[:, None]
+            keep &= np.linalg.norm(img - pos[None], axis=2) <= max_path_m
+            if order == 1:
+                lo, hi = np.zeros((1, m)), np.ones((1, m))
+            else:
+                lo, hi, ok = _clip_beam(source, ap0, ap1, seg[w])
                 keep &= ok
-                if not np.any(keep):
-                    continue
-                c, d = seg[w, 0], seg[w, 1]
-                # a beam through a single point (a corner) is output but not followed on
-                wide = keep & ((hi - lo) * np.linalg.norm(d - c) > _POINT_APERTURE_M)
-                if np.any(wide):
-                    new_frontier.append((
-                        A2, b2, walls + (w,), alive[wide],
-                        c + lo[wide, None] * (d - c), c + hi[wide, None] * (d - c),
-                    ))
+            identity = np.all(np.abs(A2 - np.eye(2)) < 1e-7, axis=(1, 2)) & np.all(
+                np.abs(b2) < 1e-7, axis=1
+            )
+            keep &= ~identity[:, None]  # the robot itself: the direct path is not an echo
+            hit = np.flatnonzero(np.any(keep, axis=1))
+            for i in hit:
+                key = _map_key(A2[i], b2[i])
                 if key not in seen:
                     seen.add(key)
-                    out_A.append(A2)
-                    out_b.append(b2)
+                    out_A.append(A2[i])
+                    out_b.append(b2[i])
                     out_order.append(order)
-                    out_walls.append(walls + (w,))
-                    if len(out_A) > max_images:
-                        raise ValueError(
-                            f"more than max_images={max_images} image sources up to order "
-                            f"{order}; lower the order or max_path_m"
-                        )
-        if len(out_order) and out_order[-1] == order:
-            reached = order
-        if not new_frontier:
+                    out_walls.append(walls[i] + (w,))
+                    reached = order
+            if len(out_A) > max_images:
+                raise ValueError(
+                    f"more than max_images={max_images} image sources up to order "
+                    f"{order}; lower the order or max_path_m"
+                )
+            # a beam through a single point (a corner) is output but not followed on
+            wide = keep & ((hi - lo) * lengths[w] > _POINT_APERTURE_M)
+            go = np.flatnonzero(np.any(wide, axis=1))
+            if go.size:
+                c, d = seg[w, 0], seg[w, 1]
+                kids.append((
+                    A2[go], b2[go], np.full(go.size, w), wide[go],
+                    c + lo[go, :, None] * (d - c), c + hi[go, :, None] * (d - c),
+                ))
+                kid_walls.extend(walls[i] + (w,) for i in go)
+        if not kids:
             break
-        frontier = new_frontier
+        A, b, last, alive, ap0, ap1 = (np.concatenate(parts) for parts in zip(*kids, strict=True))
+        walls = kid_walls
     return ImageSet(
         A=np.array(out_A, dtype=np.float64).reshape(-1, 2, 2),
         b=np.array(out_b, dtype=np.float64).reshape(-1, 2),
@@ -246,9 +257,6 @@ def candidate_images(
         walls=tuple(out_walls),
         max_order=reached,
     )
-
-
-_Node = tuple[FloatArray, FloatArray, tuple[int, ...], NDArray[np.int64], FloatArray, FloatArray]
 
 
 def _clip_beam(
@@ -283,11 +291,11 @@ def _clip_beam(
     fc = halfplanes(np.broadcast_to(c, s.shape))
     fd = halfplanes(np.broadcast_to(d, s.shape))
     scale = np.linalg.norm(d - c) * (
-        np.linalg.norm(bb - a, axis=1) + np.linalg.norm(a - s, axis=1)
+        np.linalg.norm(bb - a, axis=-1) + np.linalg.norm(a - s, axis=-1)
     )
     tol = 1e-9 * scale
-    lo = np.zeros(s.shape[0])
-    hi = np.ones(s.shape[0])
+    lo = np.zeros(s.shape[:-1])
+    hi = np.ones(s.shape[:-1])
     for k in range(3):
         f0, f1 = fc[k], fd[k]
         df = f1 - f0
@@ -376,7 +384,7 @@ def trace_images(
         go, wg, k = go[~too_many], wg[~too_many], k[~too_many]
         sg = s[~stop][~too_many]
         P[go] = P[go] + sg[:, None] * (T[go] - P[go])
-        T[go] = np.einsum("nij,nj->ni", WA[wg], T[go]) + Wb[wg]
+        T[go] = (WA[wg] @ T[go][:, :, None])[:, :, 0] + Wb[wg]
         walls[go, k] = wg
         order[go] = k + 1
         rprod[go] *= R[wg]

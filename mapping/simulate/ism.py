@@ -262,7 +262,7 @@ def retarded_delay(
     n, m = A.shape[0], t.size
     x_rx = trajectory.position(t)  # (m, 2)
     v_rx = trajectory.velocity(t)
-    img0 = np.einsum("nij,mj->nmi", A, x_rx) + b[:, None, :]
+    img0 = x_rx[None] @ A.transpose(0, 2, 1) + b[:, None, :]
     tau = np.linalg.norm(x_rx[None] - img0, axis=2) / c
     for _ in range(newton_steps):
         d, av = _leg(A, b, trajectory, t, tau, x_rx)
@@ -289,8 +289,8 @@ def _leg(
     te = (t[None, :] - tau).ravel()
     xe = trajectory.position(te).reshape(tau.shape + (2,))
     ve = trajectory.velocity(te).reshape(tau.shape + (2,))
-    img = np.einsum("nij,nmj->nmi", A, xe) + b[:, None, :]
-    av = np.einsum("nij,nmj->nmi", A, ve)
+    img = xe @ A.transpose(0, 2, 1) + b[:, None, :]
+    av = ve @ A.transpose(0, 2, 1)
     return x_rx[None] - img, av
 
 
@@ -598,7 +598,7 @@ def path_table(
     )
     x = trajectory.position(np.array([t_mid]))[0]
     v = trajectory.velocity(np.array([t_mid]))[0]
-    arrive = (np.einsum("nij,j->ni", A, x) + b) - x
+    arrive = (A @ x + b) - x
     speed = float(np.linalg.norm(v))
     if speed > 0:
         cosang = arrive @ v / (np.linalg.norm(arrive, axis=1) * speed)
