@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from functools import lru_cache
 
 import numpy as np
 import pytest
@@ -154,7 +155,15 @@ def test_pml_reflection_below_minus_40_db(offset_cells: tuple[int, int]) -> None
 
 
 # ---- analytic 2-D Green's function: echo of a rigid wall ------------------------------------
-def _wall_echo(d_m: float, n_steps: int, g: np.ndarray) -> np.ndarray:
+_N_ECHO = 2400
+
+
+def _echo_pulse() -> np.ndarray:
+    return _gabor(_N_ECHO, 3_000.0, 800.0, 1.2e-3)
+
+
+@lru_cache(maxsize=4)
+def _wall_echo(d_m: float) -> np.ndarray:
     """Static co-located source/receiver at distance d (an odd multiple of dx / 2) from an
     infinite rigid wall."""
     cfg = FdtdConfig(pml_cells=24)
@@ -165,7 +174,7 @@ def _wall_echo(d_m: float, n_steps: int, g: np.ndarray) -> np.ndarray:
     walls = wall_nodes(seg, np.array([np.inf]), grid, cfg, C)
     s = FdtdSolver(grid, cfg, C, walls, n_fields=2)
     pos = np.array([wall_x + d_m, grid.origin_m[1] + (size // 2) * DX])  # on a node
-    out = s.run_static(pos, pos, g)
+    out = s.run_static(pos, pos, _echo_pulse())
     return out[:, 0] - out[:, 1]
 
 
@@ -188,27 +197,34 @@ def _analytic_echo(r_m: float, g: np.ndarray, dispersive: bool) -> np.ndarray:
 
 @pytest.mark.parametrize("d_m", [40.5 * DX, 80.5 * DX])
 def test_rigid_wall_echo_matches_2d_greens_function(d_m: float) -> None:
-    n = 2400
-    g = _gabor(n, 3_000.0, 800.0, 1.2e-3)
-    fdtd = _wall_echo(d_m, n, g)
+    g = _echo_pulse()
+    fdtd = _wall_echo(d_m)
     truth = _analytic_echo(2 * d_m, g, dispersive=True)
     err = np.linalg.norm(fdtd - truth) / np.linalg.norm(truth)
     assert err < 0.03, err
-    # delay: against the non-dispersive truth, the echo is late by the predicted amount
+    # delay against the non-dispersive truth (2d/c): the envelope is late by the predicted
+    # group delay of the grid, the carrier by the predicted phase delay
     exact_c = _analytic_echo(2 * d_m, g, dispersive=False)
-    up = 16
-    a = np.fft.irfft(np.fft.rfft(fdtd) * np.conj(np.fft.rfft(exact_c)), up * n)
-    lag = (np.argmax(a) if np.argmax(a) < up * n // 2 else np.argmax(a) - up * n) / up * DT
     vg = numerical_group_velocity(3_000.0, 0.0, DX, DT, C)
-    predicted = 2 * d_m / vg - 2 * d_m / C
-    assert abs(lag - predicted) < 0.25 * DT + 0.2 * abs(predicted), (lag, predicted)
+    vp = 2 * np.pi * 3_000.0 / numerical_wavenumber(3_000.0, 0.0, DX, DT, C)
+    for lag, predicted in ((_lag(np.abs(hilbert(fdtd)), np.abs(hilbert(exact_c))),
+                            2 * d_m / vg - 2 * d_m / C),
+                           (_lag(fdtd, exact_c), 2 * d_m / vp - 2 * d_m / C)):
+        assert predicted > 0
+        assert abs(lag - predicted) < 0.15 * DT + 0.2 * predicted, (lag, predicted)
+
+
+def _lag(a: np.ndarray, b: np.ndarray, up: int = 32) -> float:
+    """Delay of ``a`` relative to ``b`` in seconds (circular cross-correlation, upsampled)."""
+    n = a.size
+    x = np.fft.irfft(np.fft.rfft(a) * np.conj(np.fft.rfft(b)), up * n)
+    i = int(np.argmax(x))
+    return (i if i < up * n // 2 else i - up * n) / up * DT
 
 
 def test_echo_spreading_is_one_over_sqrt_r() -> None:
-    n = 2400
-    g = _gabor(n, 3_000.0, 800.0, 1.2e-3)
     d1, d2 = 40.5 * DX, 80.5 * DX
-    near, far = (np.abs(hilbert(_wall_echo(d, n, g))).max() for d in (d1, d2))
+    near, far = (np.abs(hilbert(_wall_echo(d))).max() for d in (d1, d2))
     assert far / near == pytest.approx(math.sqrt(d1 / d2), rel=0.03)
 
 
@@ -242,7 +258,7 @@ def test_moving_sonar_doppler_factor_has_the_right_sign(direction: int) -> None:
     cp = 2 * np.pi * f0 / numerical_wavenumber(f0, 0.0, DX, DT, C)
     predicted = f0 * (cp + v) / (cp - v)
     assert np.sign(f_meas - f0) == np.sign(v)
-    assert f_meas == pytest.approx(predicted, rel=2e-3)
+    assert f_meas == pytest.approx(predicted, rel=3e-4)  # measured 3e-5 and 1.4e-5
 
 
 # ---- geometry helpers -----------------------------------------------------------------------
