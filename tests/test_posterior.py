@@ -328,3 +328,37 @@ def test_window_offsets_anchor_rebases_on_any_block() -> None:
         np.testing.assert_allclose(again, poses, atol=1e-12)
     with pytest.raises(ValueError, match="anchor"):
         post.window_offsets(v, w, 1.0, anchor=4)
+
+
+# ---- the real sensor model (issue 6) on a mirror-symmetric room ---------------------------
+@pytest.mark.slow
+def test_straight_path_keeps_both_mirror_modes_until_a_turn() -> None:
+    """The L-room is symmetric about y = x; a straight window cannot tell a pose from its
+    mirror (the heat map only knows |bearing|), a turning window can (yaw sign flips)."""
+    from localization.sensor import SensorConfig, build_tables
+    from tests._localization_helpers import rasterize, synthetic_heatmap, trajectory
+
+    room = np.array([[[0, 0], [5, 0]], [[5, 0], [5, 2]], [[5, 2], [2, 2]], [[2, 2], [2, 5]],
+                     [[2, 5], [0, 5]], [[0, 5], [0, 0]]], dtype=float)
+    tables = build_tables(rasterize(room), SensorConfig())
+    start = np.array([1.2, 0.8, 0.3])
+    mirror = np.array([0.8, 1.2, np.pi / 2 - 0.3])
+    prior = post.PosePrior(0.3, 1.7, 0.3, 1.7)  # the corner square: holds both
+    s = post.PosteriorSettings(n_walkers=12, n_steps=250, max_steps=600, grid_step_m=0.1,
+                               grid_heading_step_rad=math.radians(15), local_grid_cells=15)
+    rng = np.random.default_rng(0)
+    masses = {}
+    for name, w in (("straight", 0.0), ("turn", 0.5)):  # constant yaw rate over the window
+        poses = trajectory(start, [(0.1, w)] * 2, 1.023)
+        heat = [synthetic_heatmap(room, p, 0.1, rng) for p in poses]
+        ll = post.sensor_window_log_likelihood(tables, heat, np.full(3, 0.1), np.full(3, w),
+                                               1.023)
+        res = post.sample_posterior(ll, prior, np.random.default_rng(1), s)
+        near = [min(float(np.linalg.norm(post._pose_diff(m.mean, t))) for t in (start, mirror))
+                for m in res.modes]
+        assert max(near) < 0.1
+        masses[name] = {("truth" if np.linalg.norm(post._pose_diff(m.mean, start)) < 0.1
+                         else "mirror"): m.mass for m in res.modes}
+    assert set(masses["straight"]) == {"truth", "mirror"}
+    assert all(0.3 <= m <= 0.7 for m in masses["straight"].values())
+    assert masses["turn"].get("truth", 0.0) > 0.95
