@@ -88,7 +88,7 @@ def run_meta(
     }
     if blocks:
         # highest reflection order actually rendered, and the largest path count per block
-        for key in ("order", "n_paths", "order_limit"):
+        for key in ("order", "n_paths", "order_limit", "order_truncated"):
             values = [b.meta[key] for b in blocks if key in b.meta]
             if values:
                 meta[key] = max(values)

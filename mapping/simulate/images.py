@@ -54,6 +54,8 @@ class ImageSet:
         That wall sequence (first wall hit first), for reference; the traced path decides.
     max_order : int
         Highest order enumerated.
+    truncated : bool
+        True when enumeration stopped early at the image cap (see :func:`candidate_images`).
     """
 
     A: FloatArray
@@ -61,6 +63,7 @@ class ImageSet:
     order: IntArray
     walls: tuple[tuple[int, ...], ...]
     max_order: int
+    truncated: bool = False
 
     @property
     def n(self) -> int:
@@ -151,6 +154,7 @@ def candidate_images(
     max_order: int,
     max_path_m: float = np.inf,
     max_images: int = 20_000,
+    truncate: bool = False,
 ) -> ImageSet:
     """Distinct image maps up to ``max_order`` that can matter for the given robot positions.
 
@@ -173,7 +177,11 @@ def candidate_images(
     max_path_m : float
         Longest path of interest in metres.
     max_images : int
-        Raise ``ValueError`` rather than enumerate more images than this.
+        Raise ``ValueError`` rather than enumerate more images (or follow more than 5
+        times as many beams) than this ...
+    truncate : bool
+        ... or, if True, stop and return the images of the orders completed so far
+        (``ImageSet.truncated`` is then True).
 
     Returns
     -------
@@ -231,10 +239,21 @@ def candidate_images(
                     out_order.append(order)
                     out_walls.append(walls[i] + (w,))
                     reached = order
-            if len(out_A) > max_images:
+            n_beams = sum(k[0].shape[0] for k in kids)
+            if len(out_A) > max_images or n_beams > 5 * max_images:
+                if truncate:
+                    done = np.array(out_order) < order
+                    return ImageSet(
+                        A=np.array(out_A, dtype=np.float64).reshape(-1, 2, 2)[done],
+                        b=np.array(out_b, dtype=np.float64).reshape(-1, 2)[done],
+                        order=np.array(out_order, dtype=np.int64)[done],
+                        walls=tuple(wl for wl, k in zip(out_walls, done, strict=True) if k),
+                        max_order=order - 1,
+                        truncated=True,
+                    )
                 raise ValueError(
-                    f"more than max_images={max_images} image sources up to order "
-                    f"{order}; lower the order or max_path_m"
+                    f"more than max_images={max_images} image sources (or beams) up to "
+                    f"order {order}; lower the order or max_path_m"
                 )
             # a beam through a single point (a corner) is output but not followed on
             wide = keep & ((hi - lo) * lengths[w] > _POINT_APERTURE_M)

@@ -61,6 +61,10 @@ class IsmConfig:
         no longer than ``max_path_m`` (whose amplitude is above ``energy_threshold_db``).
     max_order : int
         Cap for the automatic order.
+    max_images : int
+        Cap on candidate image sources per block: the automatic order stops at the last order
+        completed below it (recorded as ``order_truncated`` in the block metadata); a fixed
+        order raises ``ValueError``.
     max_path_m : float or None
         Longest path kept with the automatic order; None is one period's round trip,
         ``c P / fs`` (34.78 m for Table 1: one-way 17.39 m, the unambiguous range).
@@ -99,6 +103,7 @@ class IsmConfig:
 
     order: int | None = None
     max_order: int = 20
+    max_images: int = 5000
     max_path_m: float | None = None
     energy_threshold_db: float = -60.0
     spreading: str = "3d"
@@ -117,6 +122,10 @@ class IsmConfig:
     def __post_init__(self) -> None:
         if self.order is not None and not 1 <= self.order <= 50:
             raise ValueError(f"IsmConfig.order must be None or in 1..50, got {self.order}")
+        if not 1 <= self.max_images <= 1_000_000:
+            raise ValueError(
+                f"IsmConfig.max_images must be in 1..1000000, got {self.max_images}"
+            )
         if not 1 <= self.max_order <= 50:
             raise ValueError(f"IsmConfig.max_order must be in 1..50, got {self.max_order}")
         if self.spreading not in _SPREADINGS:
@@ -327,6 +336,10 @@ class PreparedScene:
         Longest path kept (inf with a fixed order).
     amplitude_floor : float
         Smallest amplitude kept (relative to a rigid 1 m path).
+    automatic : bool
+        The order is automatic (enumeration may stop early at ``max_images``).
+    max_images : int
+        Cap on candidate images per block.
     """
 
     segments: FloatArray
@@ -334,6 +347,8 @@ class PreparedScene:
     order: int
     max_path_m: float
     amplitude_floor: float
+    automatic: bool = False
+    max_images: int = 20_000
 
 
 def prepare_scene(scene: SceneLike, config: SonarConfig, engine: IsmConfig) -> PreparedScene:
@@ -352,13 +367,26 @@ def prepare_scene(scene: SceneLike, config: SonarConfig, engine: IsmConfig) -> P
         limit = range_limit_m(config) if engine.max_path_m is None else engine.max_path_m
         # a rigid path of length L has amplitude L**-p; beyond floor**(-1/p) nothing counts
         limit = min(limit, floor ** (-1.0 / spreading_power(engine.spreading)))
-        return PreparedScene(seg, refl, engine.max_order, float(limit), floor)
-    return PreparedScene(seg, refl, engine.order, float(np.inf), floor)
+        return PreparedScene(
+            seg, refl, engine.max_order, float(limit), floor, True, engine.max_images
+        )
+    return PreparedScene(seg, refl, engine.order, float(np.inf), floor, False, engine.max_images)
 
 
 def stretch_images(prepared: PreparedScene, positions_m: FloatArray) -> ImageSet:
-    """Candidate images for robot positions (the validity nodes of one stretch)."""
-    return candidate_images(prepared.segments, positions_m, prepared.order, prepared.max_path_m)
+    """Candidate images for robot positions (the validity nodes of one stretch).
+
+    With the automatic order the enumeration stops at the last order completed before
+    ``max_images`` candidates (then ``ImageSet.truncated``); a fixed order raises instead.
+    """
+    return candidate_images(
+        prepared.segments,
+        positions_m,
+        prepared.order,
+        prepared.max_path_m,
+        max_images=prepared.max_images,
+        truncate=prepared.automatic,
+    )
 
 
 def path_gains(
@@ -730,6 +758,7 @@ def _plan_meta(plan: StretchPlan, prepared: PreparedScene) -> dict[str, Any]:
         "order": int(orders.max()) if orders.size else 0,
         "order_limit": int(prepared.order),
         "n_images": int(plan.images.n),
+        "order_truncated": bool(plan.images.truncated),
         "n_paths": int(plan.active.size),
     }
 
