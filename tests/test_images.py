@@ -215,3 +215,16 @@ def test_bad_segments_raise():
     with pytest.raises(ValueError, match="reflection"):
         images = candidate_images(SHOEBOX, np.ones((1, 2)), 1)
         trace_images(images, SHOEBOX, np.ones(3), np.ones((1, 2)))
+
+
+def test_image_cap_truncates_whole_orders_or_raises():
+    pos = np.array([[1.0, 1.5]])
+    full = candidate_images(SHOEBOX, pos, 6)
+    capped = candidate_images(SHOEBOX, pos, 6, max_images=30, truncate=True)
+    assert capped.truncated and not full.truncated
+    assert capped.n <= 30 and capped.max_order < 6
+    # every order kept is complete: the same images as the uncapped set up to that order
+    keep = full.order <= capped.max_order
+    assert capped.n == int(np.sum(keep))
+    with pytest.raises(ValueError, match="max_images"):
+        candidate_images(SHOEBOX, pos, 6, max_images=30)
