@@ -879,7 +879,7 @@ def sim_block(setup: FdtdSetup, state: FdtdState, k: int) -> SimBlock:
         pose=np.asarray(traj.pose(t_mid), dtype=np.float64).reshape(3),
         speed_m_s=float(np.asarray(traj.speed_m_s(t_mid)).ravel()[0]),
         yaw_rate_rad_s=float(np.asarray(traj.yaw_rate_rad_s(t_mid)).ravel()[0]),
-        paths=_empty_paths(), meta={"engine": "fdtd", "order": None},
+        paths=_empty_paths(), meta={"engine": "fdtd"},
     )
 
 
