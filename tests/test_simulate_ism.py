@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.special import hankel2
 
 from mapping import synthetic
@@ -472,3 +474,48 @@ def test_cli_simulate_writes_a_run_file(tmp_path):
                  "--out", str(out)]) == 2
     assert main(["simulate", "--scene", "builtin:paper", "--path", "paper-a", "--blocks", "0",
                  "--out", str(out)]) == 2
+
+
+class _Line:
+    """Stand-in trajectory: x(t) = p0 + v t (any time)."""
+
+    name = "line"
+    duration_s = 1.0
+
+    def __init__(self, p0: np.ndarray, v: np.ndarray) -> None:
+        self.p0, self.v = p0, v
+
+    def position(self, t):
+        return self.p0[None] + np.atleast_1d(np.asarray(t, float))[:, None] * self.v[None]
+
+    def velocity(self, t):
+        return np.broadcast_to(self.v, (np.size(t), 2)).copy()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(-3, 3), st.floats(-3, 3), st.floats(0, 2 * math.pi), st.floats(0.0, 2.0),
+    st.floats(0, 2 * math.pi), st.floats(2.5, 5.0),  # the robot stays in front of the wall
+)
+def test_retarded_delay_solves_its_equation(px, py, heading, speed, wall_angle, wall_dist):
+    from mapping.simulate.images import mirror_maps
+    from mapping.simulate.ism import retarded_delay
+
+    n = np.array([math.cos(wall_angle), math.sin(wall_angle)])
+    p0 = np.array([px, py])
+    foot = p0 + wall_dist * n
+    seg = np.array([[foot - 5 * np.array([-n[1], n[0]]), foot + 5 * np.array([-n[1], n[0]])]])
+    A, b = mirror_maps(seg)
+    traj = _Line(p0, speed * np.array([math.cos(heading), math.sin(heading)]))
+    t = np.linspace(-1.0, 1.0, 7)
+    tau, dtau = retarded_delay(A, b, traj, t, C, 3)
+    assert tau.shape == dtau.shape == (1, 7) and np.all(tau > 0)
+    x, xe = traj.position(t), traj.position(t - tau[0])
+    residual = np.linalg.norm(x - (xe @ A[0].T + b[0]), axis=1) - C * tau[0]
+    assert np.max(np.abs(residual)) < 1e-9
+    h = 1e-4
+    fd = (retarded_delay(A, b, traj, t + h, C, 3)[0] - retarded_delay(A, b, traj, t - h, C, 3)[0])
+    assert np.allclose(dtau, fd / (2 * h), atol=1e-9)
+    # a wall: exactly (c + u) / (c - u) with u the approach speed
+    u = float(traj.v @ n)
+    assert np.allclose(1 - dtau, (C + u) / (C - u), atol=1e-10)
