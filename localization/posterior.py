@@ -1043,19 +1043,56 @@ def _mode_part(run: ChainRun, fn: Callable[[FloatArray], FloatArray], center: fl
                                                                n_eff, rng))
 
 
+def merge_overlapping(parts: list[_ModePart], coarse_mass: FloatArray,
+                      max_mahalanobis: float = 2.0) -> tuple[list[_ModePart], FloatArray]:
+    """Merge ensembles that ended in the same place (a broad mode split on the coarse grid).
+
+    Ensembles i < j merge when their means are within ``max_mahalanobis`` under
+    ``cov_i + cov_j``: samples are pooled (chain diagnostics stay those of i), the mode's
+    fine grid is the one with the larger integral (they cover the same mass), coarse masses
+    add up.
+    """
+    parts, coarse = list(parts), list(coarse_mass)
+    merged = True
+    while merged:
+        merged = False
+        stats = [summarize_samples(p.samples)[:2] for p in parts]
+        for i in range(len(parts)):
+            for j in range(i + 1, len(parts)):
+                d = _pose_diff(stats[j][0], stats[i][0])
+                cov = stats[i][1] + stats[j][1]
+                if d @ np.linalg.solve(cov + 1e-12 * np.eye(NDIM), d) < max_mahalanobis**2:
+                    a, b = parts[i], parts[j]
+                    keep = a.grid if a.grid.log_integral >= b.grid.log_integral else b.grid
+                    parts[i] = _ModePart(a.run, np.concatenate([a.samples, b.samples]),
+                                         np.concatenate([a.log_prob, b.log_prob]), keep,
+                                         a.comparison)
+                    coarse[i] += coarse.pop(j)
+                    parts.pop(j)
+                    merged = True
+                    break
+            if merged:
+                break
+    return parts, np.array(coarse)
+
+
 def _assemble(parts: list[_ModePart], grid: GridPosterior, modes: GridModes,
               s: PosteriorSettings) -> PosteriorResult:
+    parts, coarse_mass = merge_overlapping(parts, modes.mass)
     log_int = np.array([p.grid.log_integral for p in parts])
     if np.all(np.isfinite(log_int)):
         mass = np.exp(log_int - np.max(log_int))
         mass /= mass.sum()
     else:
-        mass = modes.mass.copy()
+        mass = coarse_mass.copy()
+    order = np.argsort(-mass, kind="stable")
+    parts = [parts[k] for k in order]
+    mass, coarse_mass = mass[order], coarse_mass[order]
     summaries = []
     for k, p in enumerate(parts):
         mean, cov, r, i68, i95 = summarize_samples(p.samples)
         summaries.append(ModeSummary(
-            mass=float(mass[k]), mass_coarse=float(modes.mass[k]), mean=mean, cov=cov,
+            mass=float(mass[k]), mass_coarse=float(coarse_mass[k]), mean=mean, cov=cov,
             heading_resultant_length=r, heading_circular_std_rad=circular_std(r),
             interval68=i68, interval95=i95, tau=p.run.tau,
             acceptance_fraction=p.run.acceptance_fraction, n_steps=int(p.run.chain.shape[0]),

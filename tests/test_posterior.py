@@ -362,3 +362,21 @@ def test_straight_path_keeps_both_mirror_modes_until_a_turn() -> None:
     assert set(masses["straight"]) == {"truth", "mirror"}
     assert all(0.3 <= m <= 0.7 for m in masses["straight"].values())
     assert masses["turn"].get("truth", 0.0) > 0.95
+
+
+def test_ensembles_that_meet_are_merged() -> None:
+    rng = np.random.default_rng(0)
+    run = post.ChainRun(np.zeros((1, 1, 3)), np.zeros((1, 1)), np.ones(4), 0, 1, 0.3, True)
+    grid = post.GridPosterior(np.arange(3.0), np.arange(3.0), np.arange(3.0),
+                              np.zeros((3, 3, 3)), periodic=False)
+    cmp = post.GridComparison(0, 0, 0, 0.68, 0.95, 0, 100)
+
+    def part(center: list[float]) -> post._ModePart:
+        pts = rng.normal(center, [0.05, 0.05, 0.1], size=(500, 3))
+        return post._ModePart(run, pts, np.zeros(500), grid, cmp)
+
+    parts = [part([1.0, 1.0, 0.0]), part([1.01, 1.0, 0.02]), part([2.0, 1.0, 0.0])]
+    merged, coarse = post.merge_overlapping(parts, np.array([0.3, 0.3, 0.4]))
+    assert len(merged) == 2
+    assert merged[0].samples.shape[0] == 1000
+    np.testing.assert_allclose(coarse, [0.6, 0.4])
