@@ -17,9 +17,14 @@ from mapping._numba_config import NUMBA_FLAGS, PARALLEL
 @numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
 def _score_kernel(
     g: NDArray[np.float32],
-    offsets: NDArray[np.int32],
+    nx_pad: int,
+    cos_tab: NDArray[np.float64],
+    sin_tab: NDArray[np.float64],
+    r_cells: NDArray[np.float64],
     base: NDArray[np.int64],
-    lut: NDArray[np.int64],
+    ux: NDArray[np.float64],
+    uy: NDArray[np.float64],
+    hb: NDArray[np.int64],
     cell: NDArray[np.int64],
     s1: NDArray[np.float64],
     s2: NDArray[np.float64],
@@ -32,36 +37,54 @@ def _score_kernel(
 ) -> None:
     """Pearson correlation of a sparse measurement with the polar samples of ``g``.
 
-    For particle i the samples are ``g[base[i] + offsets[lut[i], s]]``; only the ``idx``
-    entries (values ``val``) of the measurement are non-zero, so the cross term is a sparse
-    dot product, and the sample sum and sum of squares come from the per-cell tables ``s1``
-    and ``s2``. ``cell[i] < 0`` marks a particle off the map (``out = nan``).
+    Particle i sits ``(ux[i], uy[i])`` cells (each in [-0.5, 0.5]) from the centre of the
+    cell with padded flat index ``base[i]``, with heading bin ``hb[i]``; polar sample
+    ``s = k * n_angles + j`` is the cell nearest to that point plus
+    ``r_k (cos_tab[hb, j], sin_tab[hb, j])`` (offsets rounded relative to the cell, so a
+    cell centre reproduces the heading-0 table exactly). Only the ``idx`` entries (values
+    ``val``) of the measurement are non-zero, so the cross term is a sparse dot product; the
+    sample sum and sum of squares come from the per-cell tables ``s1`` and ``s2``.
+    ``cell[i] < 0`` marks a particle off the map (``out = nan``).
     """
-    n = base.shape[0]
-    for i in numba.prange(n):
+    n_angles = cos_tab.shape[1]
+    for i in numba.prange(base.shape[0]):
         c = cell[i]
         if c < 0:
             out[i] = np.nan
             continue
+        h = hb[i]
         b = base[i]
-        row = offsets[lut[i]]
+        x = ux[i] + 0.5
+        y = uy[i] + 0.5
         dot = 0.0
         for t in range(idx.shape[0]):
-            dot += val[t] * g[b + row[idx[t]]]
+            s = idx[t]
+            k = s // n_angles
+            j = s - k * n_angles
+            dx = int(math.floor(r_cells[k] * cos_tab[h, j] + x))
+            dy = int(math.floor(r_cells[k] * sin_tab[h, j] + y))
+            dot += val[t] * g[b + dy * nx_pad + dx]
         var = s2[c] - s1[c] * s1[c] / n_samp
         out[i] = (dot - m_mean * s1[c]) / (m_norm * math.sqrt(var)) if var > 1e-18 else 0.0
 
 
 def _score_numpy(
-    g: NDArray[np.float32], offsets: NDArray[np.int32], base: NDArray[np.int64],
-    lut: NDArray[np.int64], cell: NDArray[np.int64], s1: NDArray[np.float64],
-    s2: NDArray[np.float64], idx: NDArray[np.int64], val: NDArray[np.float64],
-    m_mean: float, m_norm: float, n_samp: int,
+    g: NDArray[np.float32], nx_pad: int, cos_tab: NDArray[np.float64],
+    sin_tab: NDArray[np.float64], r_cells: NDArray[np.float64], base: NDArray[np.int64],
+    ux: NDArray[np.float64], uy: NDArray[np.float64], hb: NDArray[np.int64],
+    cell: NDArray[np.int64], s1: NDArray[np.float64], s2: NDArray[np.float64],
+    idx: NDArray[np.int64], val: NDArray[np.float64], m_mean: float, m_norm: float,
+    n_samp: int,
 ) -> NDArray[np.float64]:
     """Plain numpy twin of :func:`_score_kernel` (returns the scores)."""
     out = np.full(base.shape[0], np.nan)
     ok = cell >= 0
-    p = g[base[ok, None] + offsets[lut[ok]][:, idx]].astype(np.float64)
+    n_angles = cos_tab.shape[1]
+    k, j = idx // n_angles, idx % n_angles
+    h = hb[ok][:, None]
+    dx = np.floor(r_cells[k][None, :] * cos_tab[h, j[None, :]] + (ux[ok][:, None] + 0.5))
+    dy = np.floor(r_cells[k][None, :] * sin_tab[h, j[None, :]] + (uy[ok][:, None] + 0.5))
+    p = g[base[ok][:, None] + (dy * nx_pad + dx).astype(np.int64)].astype(np.float64)
     c = cell[ok]
     var = s2[c] - s1[c] ** 2 / n_samp
     num = p @ val - m_mean * s1[c]
@@ -70,14 +93,17 @@ def _score_numpy(
 
 
 def score(
-    g: NDArray[np.float32], offsets: NDArray[np.int32], base: NDArray[np.int64],
-    lut: NDArray[np.int64], cell: NDArray[np.int64], s1: NDArray[np.float64],
-    s2: NDArray[np.float64], idx: NDArray[np.int64], val: NDArray[np.float64],
-    m_mean: float, m_norm: float, n_samp: int,
+    g: NDArray[np.float32], nx_pad: int, cos_tab: NDArray[np.float64],
+    sin_tab: NDArray[np.float64], r_cells: NDArray[np.float64], base: NDArray[np.int64],
+    ux: NDArray[np.float64], uy: NDArray[np.float64], hb: NDArray[np.int64],
+    cell: NDArray[np.int64], s1: NDArray[np.float64], s2: NDArray[np.float64],
+    idx: NDArray[np.int64], val: NDArray[np.float64], m_mean: float, m_norm: float,
+    n_samp: int,
 ) -> NDArray[np.float64]:
     """Allocate the output and run :func:`_score_kernel`."""
     out = np.empty(base.shape[0], dtype=np.float64)
-    _score_kernel(g, offsets, base, lut, cell, s1, s2, idx, val, m_mean, m_norm, n_samp, out)
+    _score_kernel(g, nx_pad, cos_tab, sin_tab, r_cells, base, ux, uy, hb, cell, s1, s2, idx,
+                  val, m_mean, m_norm, n_samp, out)
     return out
 
 

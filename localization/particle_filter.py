@@ -11,8 +11,9 @@ object that holds the arrays and calls them in order, one sonar block per :meth:
    (Thrun et al., *Probabilistic Robotics*, Table 8.3);
 4. summarize the weighted set (:mod:`localization.estimate`);
 5. resample systematically when ESS < ``resample_ess_fraction * n``, replacing a share
-   ``max(0, 1 - w_fast / w_slow)`` of particles by fresh poses drawn over the free space
-   (candidates importance-weighted by the current block, i.e. sensor resetting) so a
+   ``max(0, 1 - e^t w_fast / w_slow)`` (threshold t) of particles by fresh poses drawn
+   over the free space (candidates importance-weighted by the current block, i.e. sensor
+   resetting) so a
    kidnapped robot is found again; optionally adapting the count (KLD sampling, Fox 2003).
 """
 
@@ -63,6 +64,11 @@ class FilterConfig:
         Smoothing rates of the long- and short-term likelihood averages (per block).
     max_inject_fraction : float
         Cap on the share of particles replaced in one resampling.
+    inject_threshold_nats : float
+        Injection starts only when the short-term likelihood average falls this many nats
+        below the long-term one (``w_fast < w_slow exp(-threshold)``); the share injected is
+        ``1 - exp(threshold) w_fast / w_slow``. Keeps ordinary block-to-block likelihood
+        swings (several nats at a sharp beta) from spraying particles while tracking.
     inject_candidates : int
         Candidates drawn per injected particle; the injected ones are picked among them by
         the current block's likelihood.
@@ -87,6 +93,7 @@ class FilterConfig:
     alpha_slow: float = 0.05
     alpha_fast: float = 0.5
     max_inject_fraction: float = 0.25
+    inject_threshold_nats: float = 1.0
     inject_candidates: int = 8
     global_oversample: int = 10
     kld: bool = False
@@ -337,7 +344,8 @@ class ParticleFilter:
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
             if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
-                p_inject = max(0.0, 1.0 - math.exp(min(fast - slow, 0.0)))
+                gap = fast - slow + cfg.inject_threshold_nats
+                p_inject = max(0.0, 1.0 - math.exp(min(gap, 0.0)))
             p_inject = min(p_inject, cfg.max_inject_fraction)
             n_inject = int(self.rng.binomial(n_out, p_inject)) if p_inject > 0 else 0
             if n_inject:

@@ -29,8 +29,12 @@ The correlation becomes a likelihood by tempering and flooring (AMCL's ``z_rand`
     p(z | x) = (1 - z_rand) exp(beta (rho - 1)) + z_rand
 
 Lookup tables make one particle a gather and a dot product: G (lightly blurred, padded by
-the maximum range) is flattened, and for every heading bin and sub-cell phase the flat index
-offsets of all polar samples are precomputed. Exhaustive scoring of every heading at a cell
+the maximum range) is flattened, the direction cosines of every (heading bin, polar angle)
+and the ranges in cells are tabulated, and the sample sums the correlation's denominator
+needs are precomputed per cell; a particle then costs one nearest-cell gather and one
+multiply-add per kept measurement entry. (A table of precomputed flat offsets per heading
+bin and sub-cell phase was tried first: 36 MB, and on this shared machine reading its rows
+cost more than computing the offsets.) Exhaustive scoring of every heading at a cell
 is a circular cross-correlation along the angle axis, done with FFTs
 (:func:`score_cells_all_headings`); it is exactly the particle score at the cell centre and
 heading ``2 pi m / n_angles``.
@@ -72,9 +76,7 @@ class SensorConfig:
     range_step_m, min_range_m, max_range_m : float
         Range bins ``min_range_m + k * range_step_m`` below ``max_range_m``.
     n_headings : int
-        Heading bins of the lookup table; a multiple of ``n_angles``.
-    n_sub : int
-        Sub-cell phases per axis of the lookup table (odd, so a cell centre is a phase).
+        Heading bins of the direction table (1 deg by default); a multiple of ``n_angles``.
     beta : float
         Sharpness: log-likelihood ``beta * (rho - 1)`` before the floor.
     z_rand : float
@@ -97,8 +99,7 @@ class SensorConfig:
     range_step_m: float = 0.05
     min_range_m: float = 0.15
     max_range_m: float = 5.0
-    n_headings: int = 144
-    n_sub: int = 3
+    n_headings: int = 360
     beta: float = 100.0
     z_rand: float = 0.05
     min_speed_m_s: float = 0.03
@@ -116,8 +117,6 @@ class SensorConfig:
                 f"n_headings must be a multiple of n_angles={self.n_angles}, got "
                 f"{self.n_headings}"
             )
-        if self.n_sub < 1 or self.n_sub % 2 == 0 or self.n_sub > 9:
-            raise ValueError(f"n_sub must be odd in [1, 9], got {self.n_sub}")
         if not 0 < self.range_step_m <= 1.0:
             raise ValueError(f"range_step_m must be in (0, 1] m, got {self.range_step_m}")
         if not 0 <= self.min_range_m < self.max_range_m - self.range_step_m:
@@ -159,9 +158,13 @@ class SensorTables:
     config : SensorConfig
     g : ndarray float32, shape (ny_pad * nx_pad,)
         Blurred G, padded by ``pad`` cells on every side, flattened row-major.
-    offsets : ndarray int32, shape (n_headings * n_sub**2, n_r * n_angles)
-        Flat index offsets of the polar samples (range-major: ``s = k * n_angles + j``),
-        per heading bin and sub-cell phase (row ``(heading_bin * n_sub + sy) * n_sub + sx``).
+    offsets0 : ndarray int32, shape (n_r * n_angles,)
+        Flat index offsets of the polar samples around a cell centre at heading 0
+        (range-major: ``s = k * n_angles + j``).
+    cos_tab, sin_tab : ndarray, shape (n_headings, n_angles)
+        Direction cosines of polar angle j at heading bin b.
+    r_cells : ndarray, shape (n_r,)
+        Range bins in cells.
     s1, s2 : ndarray float64, shape (ny * nx,)
         Sum and sum of squares of the polar samples around each cell centre.
     ring : ndarray float32, shape (ny * nx, n_r)
@@ -177,7 +180,10 @@ class SensorTables:
 
     config: SensorConfig
     g: NDArray[np.float32]
-    offsets: NDArray[np.int32]
+    offsets0: NDArray[np.int32]
+    cos_tab: FloatArray
+    sin_tab: FloatArray
+    r_cells: FloatArray
     s1: FloatArray
     s2: FloatArray
     ring: NDArray[np.float32]
@@ -191,12 +197,12 @@ class SensorTables:
     @property
     def n_r(self) -> int:
         """Number of range bins."""
-        return int(self.offsets.shape[1] // self.config.n_angles)
+        return int(self.r_cells.shape[0])
 
     @property
     def n_samples(self) -> int:
         """Polar samples per pose, ``n_r * n_angles``."""
-        return int(self.offsets.shape[1])
+        return int(self.offsets0.shape[0])
 
     @property
     def nx_pad(self) -> int:
@@ -263,11 +269,14 @@ def build_tables(
         free_mask = free_space_mask(wall_map)
     elif free_mask.shape != (ny, nx):
         raise ValueError(f"free_mask must have shape {(ny, nx)}, got {free_mask.shape}")
-    offsets = _offsets(config, res, nx + 2 * pad)
-    n_r = offsets.shape[1] // config.n_angles
+    cos_tab, sin_tab = _direction_tables(config)
+    r_cells = config.ranges_m / res
+    nx_pad = nx + 2 * pad
+    offsets0 = (np.floor(r_cells[:, None] * sin_tab[0][None, :] + 0.5) * nx_pad
+                + np.floor(r_cells[:, None] * cos_tab[0][None, :] + 0.5)).astype(np.int32).ravel()
+    n_r = r_cells.shape[0]
     s1, s2 = np.zeros(ny * nx), np.zeros(ny * nx)
     ring = np.zeros((ny * nx, n_r), dtype=np.float32)
-    centre = _centre_row(config)
     active = _active_box(free_mask, int(math.ceil(active_margin_m / res)))
     iy0, iy1, ix0, ix1 = active
     cells = np.indices((iy1 - iy0, ix1 - ix0)).reshape(2, -1).T + np.array([iy0, ix0])
@@ -275,13 +284,14 @@ def build_tables(
     for s in range(0, cells.shape[0], 1024):
         c = cells[s:s + 1024]
         base = (c[:, 0] + pad) * (nx + 2 * pad) + c[:, 1] + pad
-        q = g_flat[base[:, None] + offsets[centre][None, :]].astype(np.float64)
+        q = g_flat[base[:, None] + offsets0[None, :]].astype(np.float64)
         flat = c[:, 0] * nx + c[:, 1]
         s1[flat] = q.sum(axis=1)
         s2[flat] = (q * q).sum(axis=1)
         ring[flat] = q.reshape(-1, n_r, config.n_angles).sum(axis=2)
     return SensorTables(
-        config=config, g=g_flat, offsets=offsets, s1=s1, s2=s2, ring=ring, active=active,
+        config=config, g=g_flat, offsets0=offsets0, cos_tab=cos_tab, sin_tab=sin_tab,
+        r_cells=r_cells, s1=s1, s2=s2, ring=ring, active=active,
         pad=pad,
         shape=(ny, nx), origin_m=(float(wall_map.origin_m[0]), float(wall_map.origin_m[1])),
         resolution_m=res, free_mask=np.asarray(free_mask, dtype=bool),
@@ -298,30 +308,20 @@ def _active_box(free_mask: NDArray[np.bool_], margin: int) -> tuple[int, int, in
             max(int(xs.min()) - margin, 0), min(int(xs.max()) + margin + 1, nx))
 
 
-def _centre_row(config: SensorConfig) -> int:
-    """Lookup-table row of heading 0 and the cell-centre phase."""
-    return (config.n_sub // 2) * config.n_sub + config.n_sub // 2
+def _direction_tables(config: SensorConfig) -> tuple[FloatArray, FloatArray]:
+    """cos and sin of polar angle j at heading bin b, shape (n_headings, n_angles).
 
-
-def _offsets(config: SensorConfig, res: float, nx_pad: int) -> NDArray[np.int32]:
-    """Flat offsets, shape (n_headings * n_sub**2, n_r * n_angles), range-major samples."""
-    r = config.ranges_m / res
+    Heading bin ``b * step + f`` is the polar grid rotated by ``b`` whole angle steps plus
+    ``f`` fine steps; whole-step rotations are exact circular shifts of heading bin 0, so
+    the exhaustive (FFT) scoring equals the per-pose scoring at those headings.
+    """
     phi = 2.0 * np.pi * np.arange(config.n_angles) / config.n_angles
     step = config.n_headings // config.n_angles
-    # heading bin b * step + f is the polar grid rotated by b whole angle steps plus f fine
-    # steps, so whole-step rotations are exact circular shifts of the heading-0 samples
     fine = 2.0 * np.pi * np.arange(step) / config.n_headings
-    phase = (np.arange(config.n_sub) + 0.5) / config.n_sub - 0.5
-    rows = []
-    for b in range(config.n_angles):
-        for f in range(step):
-            ang = phi[(np.arange(config.n_angles) + b) % config.n_angles] + fine[f]
-            dx = r[:, None] * np.cos(ang)[None, :]                    # (R, A)
-            dy = r[:, None] * np.sin(ang)[None, :]
-            ix = np.rint(dx[None, None] + phase[None, :, None, None])  # (1, Sx, R, A)
-            iy = np.rint(dy[None, None] + phase[:, None, None, None])  # (Sy, 1, R, A)
-            rows.append((iy * nx_pad + ix).astype(np.int32).reshape(config.n_sub**2, -1))
-    return np.concatenate(rows, axis=0)
+    j = np.arange(config.n_angles)
+    ang = np.stack([phi[(j + b) % config.n_angles] + fine[f]
+                    for b in range(config.n_angles) for f in range(step)])
+    return np.cos(ang), np.sin(ang)
 
 
 def free_space_mask(
@@ -473,21 +473,23 @@ def _bin_ranges(H: FloatArray, ranges_m: FloatArray, config: SensorConfig) -> Fl
 
 
 # ---- scoring -------------------------------------------------------------------------------
-def _index(tables: SensorTables, poses: FloatArray
-           ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """Padded flat base index, lookup-table row and map cell (-1 off the map) of each pose."""
+def _index(tables: SensorTables, poses: FloatArray) -> tuple[
+        NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+    """Padded flat index of each pose's nearest cell, its offset (ux, uy) from that cell's
+    centre in cells, its heading bin and its map cell (-1 off the map)."""
     cfg = tables.config
     c = (poses[:, :2] - np.asarray(tables.origin_m)) / tables.resolution_m
-    cell = np.floor(c + 0.5)
-    sub = np.clip(np.floor((c - cell + 0.5) * cfg.n_sub), 0, cfg.n_sub - 1).astype(np.int64)
-    ix, iy = cell[:, 0].astype(np.int64), cell[:, 1].astype(np.int64)
-    ny, nx = tables.shape
+    near = np.floor(c + 0.5)
+    u = c - near
+    u = np.where(np.abs(u) < 1e-9, 0.0, u)       # cell centres exactly
+    ix, iy = near[:, 0].astype(np.int64), near[:, 1].astype(np.int64)
     iy0, iy1, ix0, ix1 = tables.active
     on = (ix >= ix0) & (ix < ix1) & (iy >= iy0) & (iy < iy1)
-    base = np.where(on, (iy + tables.pad) * tables.nx_pad + ix + tables.pad, 0)
     hb = np.rint(poses[:, 2] * cfg.n_headings / (2 * np.pi)).astype(np.int64) % cfg.n_headings
-    lut = (hb * cfg.n_sub + sub[:, 1]) * cfg.n_sub + sub[:, 0]
-    return base.astype(np.int64), lut, np.where(on, iy * nx + ix, -1).astype(np.int64)
+    cell = np.where(on, iy * tables.shape[1] + ix, -1).astype(np.int64)
+    base = np.where(on, (iy + tables.pad) * tables.nx_pad + ix + tables.pad, 0)
+    return (base.astype(np.int64), np.ascontiguousarray(u[:, 0]),
+            np.ascontiguousarray(u[:, 1]), hb, cell)
 
 
 def _check(poses: FloatArray) -> FloatArray:
@@ -509,23 +511,24 @@ def score_poses(tables: SensorTables, measurement: Measurement, poses: FloatArra
     depend on the heading at all.
     """
     poses = _check(poses)
-    base, lut, cell = _index(tables, poses)
+    base, ux, uy, hb, cell = _index(tables, poses)
     if measurement.model == "range":
         return _k.score_range(tables.ring, cell, measurement.dense)
-    return _k.score(tables.g, tables.offsets, base, lut, cell, tables.s1, tables.s2,
-                    measurement.idx, measurement.val, measurement.m_mean, measurement.m_norm,
-                    tables.n_samples)
+    return _k.score(tables.g, tables.nx_pad, tables.cos_tab, tables.sin_tab,
+                    tables.r_cells, base, ux, uy, hb, cell, tables.s1, tables.s2, measurement.idx,
+                    measurement.val, measurement.m_mean, measurement.m_norm, tables.n_samples)
 
 
 def score_poses_numpy(tables: SensorTables, measurement: Measurement,
                       poses: FloatArray) -> FloatArray:
     """Plain numpy twin of :func:`score_poses` (for tests)."""
     poses = _check(poses)
-    base, lut, cell = _index(tables, poses)
+    base, ux, uy, hb, cell = _index(tables, poses)
     if measurement.model == "range":
         return _k._range_numpy(tables.ring, cell, measurement.dense)
-    return _k._score_numpy(tables.g, tables.offsets, base, lut, cell, tables.s1, tables.s2,
-                           measurement.idx, measurement.val, measurement.m_mean,
+    return _k._score_numpy(tables.g, tables.nx_pad, tables.cos_tab,
+                           tables.sin_tab, tables.r_cells, base, ux, uy, hb, cell, tables.s1,
+                           tables.s2, measurement.idx, measurement.val, measurement.m_mean,
                            measurement.m_norm, tables.n_samples)
 
 
@@ -569,11 +572,14 @@ def pose_log_likelihood(tables: SensorTables, measurement: Measurement, poses: F
 def polar_prediction(tables: SensorTables, pose: FloatArray) -> FloatArray:
     """G sampled around one pose (3,): shape (n_r, n_angles), angles ``config.angles_rad``."""
     poses = _check(np.asarray(pose, dtype=np.float64).reshape(1, 3))
-    base, lut, cell = _index(tables, poses)
+    base, ux, uy, hb, cell = _index(tables, poses)
     if cell[0] < 0:
         raise ValueError(f"pose {pose} is off the map")
-    samples = tables.g[base[0] + tables.offsets[lut[0]]].astype(np.float64)
-    return samples.reshape(tables.n_r, tables.config.n_angles)
+    r = tables.r_cells[:, None]
+    dx = np.floor(r * tables.cos_tab[hb[0]][None, :] + (ux[0] + 0.5))
+    dy = np.floor(r * tables.sin_tab[hb[0]][None, :] + (uy[0] + 0.5))
+    flat = base[0] + (dy * tables.nx_pad + dx).astype(np.int64)
+    return tables.g[flat].astype(np.float64)
 
 
 # ---- exhaustive scoring ---------------------------------------------------------------------
@@ -583,7 +589,7 @@ def cell_polar_samples(tables: SensorTables, cells: NDArray[np.int64]) -> NDArra
     Returns shape (n, n_r, n_angles).
     """
     base = (cells[:, 0] + tables.pad) * tables.nx_pad + cells[:, 1] + tables.pad
-    out = tables.g[base[:, None] + tables.offsets[_centre_row(tables.config)][None, :]]
+    out = tables.g[base[:, None] + tables.offsets0[None, :]]
     return out.reshape(cells.shape[0], tables.n_r, tables.config.n_angles)
 
 
