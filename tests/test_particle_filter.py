@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from localization.estimate import circular_std, pose_error
+from localization.estimate import PoseEstimate, circular_std, pose_error
 from localization.motion import wrap_angle
 from localization.particle_filter import (
     FilterConfig,
@@ -223,7 +223,7 @@ def test_straight_path_keeps_mirror_modes_until_turn() -> None:
     assert pose_error(last.pose, truth[-1])[0] <= 0.1
 
 
-def _corridor_run(beta: float, n: int, seed: int) -> tuple[np.ndarray, object]:
+def _corridor_run(beta: float, n: int, seed: int) -> tuple[np.ndarray, PoseEstimate]:
     tables = build_tables(rasterize(CORRIDOR), SensorConfig(max_range_m=4.5, beta=beta))
     odo = [(0.2, 0.0)] * 3 + [(0.2, 0.25)] * 4 + [(0.2, -0.25)] * 4
     truth = trajectory(np.array([1.2, 0.5, 0.0]), odo, DT)
