@@ -404,7 +404,6 @@ def _dispersed(samples: np.ndarray, path_m: float, fs_hz: float, angle_rad: floa
                         samples.size)
 
 
-@pytest.mark.slow
 def test_agrees_with_image_source_engine_on_one_wall() -> None:
     """A sonar at 4 m/s heading 26.6 deg off a 1.6 m rigid wall, 1 cm grid, scaled-down
     signal (2.5 kHz carrier, L = 31, M = 4): after the predicted dispersion is applied to the

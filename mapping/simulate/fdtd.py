@@ -53,6 +53,8 @@ _COURANT_LIMIT = 1.0 / math.sqrt(2.0)
 _FLUSH = 1e-30
 _RESAMPLE_HALF_WIDTH = 96
 _TABLE_UPSAMPLE = 32
+#: Below this many field cells the kernel runs on one thread (per-step barriers dominate).
+_SMALL_GRID_CELLS = 200_000
 
 
 # ---- configuration ------------------------------------------------------------------------
@@ -491,9 +493,17 @@ class FdtdSolver:
         common = (self.p, self.qx, self.qy, self.psx, c.aqx, c.bqx, c.aqy, c.bqy,
                   c.apx, c.bpx, c.apy, c.bpy, self.dtype.type(c.kp), self.grid.pml_cells)
         if self.backend == "numba":
-            _k._run_steps(*common, *self._wx, *self._wy, self._imp_ptr, self._imp_col,
-                          self._imp_beta, self._imp_buf, self.offset, self.flush, *args,
-                          _n_chunks(self.grid.shape[0]))
+            import numba
+
+            threads = numba.get_num_threads()
+            if self.p.size < _SMALL_GRID_CELLS:  # a thread barrier per step costs more
+                numba.set_num_threads(1)
+            try:
+                _k._run_steps(*common, *self._wx, *self._wy, self._imp_ptr, self._imp_col,
+                              self._imp_beta, self._imp_buf, self.offset, self.flush, *args,
+                              _n_chunks(self.grid.shape[0]))
+            finally:
+                numba.set_num_threads(threads)
         else:
             beta = self.walls.beta.astype(self.dtype)
             _k._run_steps_numpy(*common, self.walls.wx, self.walls.wy, beta > 0, beta,
