@@ -225,10 +225,11 @@ def _cmd_posterior(args: argparse.Namespace) -> int:
         for ev in post.iter_posterior(loglik, post.prior_from_tables(tables),
                                       np.random.default_rng(args.seed), settings):
             if ev.stage == "sample":
-                bar.set_description(f"mode {ev.mode + 1}/{ev.n_modes}")
+                if ev.step == 1:
+                    bar.reset(total=ev.planned_steps)
+                    bar.set_description(f"mode {ev.mode + 1}/{ev.n_modes}")
                 bar.total = ev.planned_steps
-                bar.n = ev.step
-                bar.refresh()
+                bar.update(ev.step - bar.n)
             result = ev.result if ev.result is not None else result
     assert result is not None
     arrays = post.result_arrays(result)
