@@ -1,6 +1,11 @@
 """numba kernels of the sensor model; imported only by :mod:`localization.sensor`.
 
 Each kernel has a plain numpy twin (``*_numpy``) that the tests compare it with.
+
+The kernels are serial on purpose (``nogil``, no ``prange``): one filter update is a few
+milliseconds, the HTTP service runs many sessions' updates in parallel threads, and on this
+shared 2-core machine a parallel region waiting for its second thread cost 10-20 ms per call
+(measured: 2.5 ms per update with one thread vs 18-25 ms with two under load).
 """
 
 from __future__ import annotations
@@ -11,10 +16,10 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping._numba_config import NUMBA_FLAGS, PARALLEL
+from mapping._numba_config import NUMBA_FLAGS
 
 
-@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+@numba.njit(**NUMBA_FLAGS)
 def _score_kernel(
     g: NDArray[np.float32],
     nx_pad: int,
@@ -47,7 +52,7 @@ def _score_kernel(
     ``cell[i] < 0`` marks a particle off the map (``out = nan``).
     """
     n_angles = cos_tab.shape[1]
-    for i in numba.prange(base.shape[0]):
+    for i in range(base.shape[0]):
         c = cell[i]
         if c < 0:
             out[i] = np.nan
@@ -107,7 +112,7 @@ def score(
     return out
 
 
-@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+@numba.njit(**NUMBA_FLAGS)
 def _range_kernel(
     ring: NDArray[np.float32], cell: NDArray[np.int64], m0: NDArray[np.float64],
     out: NDArray[np.float64],
@@ -115,7 +120,7 @@ def _range_kernel(
     """Pearson correlation of the range profile ``m0`` (zero mean, unit norm) with the ring
     sums ``ring[cell[i]]`` of G around each particle's cell (``cell < 0``: nan)."""
     n_r = ring.shape[1]
-    for i in numba.prange(cell.shape[0]):
+    for i in range(cell.shape[0]):
         c = cell[i]
         if c < 0:
             out[i] = np.nan
