@@ -726,14 +726,22 @@ def autocorr_check(chain: FloatArray, tau_multiple: float) -> tuple[FloatArray, 
     tau is estimated with ``emcee.autocorr.integrated_time(..., tol=0)`` on x, y, cos and sin of
     heading (heading itself is not used: it is an angle); burn-in is three times the largest tau
     of the full chain (at most half of it); converged means the kept part is at least
-    ``tau_multiple`` times the largest tau of the kept part.
+    ``tau_multiple`` times the largest tau of the kept part. A feature that never moved counts
+    as tau = chain length (not converged).
     """
     n = chain.shape[0]
     feats = _features(chain)
-    tau0 = emcee.autocorr.integrated_time(feats, tol=0)
+    tau0 = _tau(feats)
     discard = int(min(3 * np.max(tau0), n // 2))
-    tau = emcee.autocorr.integrated_time(feats[discard:], tol=0)
+    tau = _tau(feats[discard:])
     return tau, discard, bool(n - discard >= tau_multiple * np.max(tau))
+
+
+def _tau(feats: FloatArray) -> FloatArray:
+    """emcee's integrated time; a feature that never moved (NaN) counts as the whole chain."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = emcee.autocorr.integrated_time(feats, tol=0)
+    return np.asarray(np.where(np.isfinite(tau), tau, float(feats.shape[0])), dtype=np.float64)
 
 
 class SnookerMove(emcee.moves.RedBlueMove):  # type: ignore[misc]

@@ -380,3 +380,44 @@ def test_ensembles_that_meet_are_merged() -> None:
     assert len(merged) == 2
     assert merged[0].samples.shape[0] == 1000
     np.testing.assert_allclose(coarse, [0.6, 0.4])
+
+
+# ---- the CLI edge -------------------------------------------------------------------------
+def test_cli_posterior_writes_record_and_rejects_bad_arguments(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from mapping.mapfile import write_map
+    from mapping.runfile import write_run
+    from mapping.signal import SonarConfig
+    from mapping.synthetic import Wall, synthetic_run
+    from mapping.wallmap import WallMap
+    from service.cli import main
+
+    run = synthetic_run(SonarConfig(repetitions=4), Wall(1.0, np.pi / 2), 0.1, n_blocks=2)
+    xs, ys = np.arange(-2.0, 2.01, 0.05), np.arange(-1.0, 1.51, 0.05)
+    G = np.exp(-0.5 * ((ys[:, None] - 1.0) / 0.035) ** 2) * np.ones((1, xs.size))
+    write_map(tmp_path / "map.npz", WallMap(G=G, origin_m=(-2.0, -1.0), resolution_m=0.05))
+    write_run(tmp_path / "run.npz", run)
+    common = ["posterior", "--map", str(tmp_path / "map.npz"), str(tmp_path / "run.npz"),
+              "--out", str(tmp_path / "post.npz")]
+    assert main([*common, "--blocks", "0:2", "--walkers", "6", "--steps", "15",
+                 "--max-steps", "15", "--png", str(tmp_path / "c.png")]) == 0
+    with np.load(tmp_path / "post.npz") as rec:
+        assert rec["samples"].shape[1] == 3
+        assert rec["weights"].sum() == pytest.approx(1.0)
+        assert rec["mode_mass"].sum() == pytest.approx(1.0)
+        np.testing.assert_allclose(rec["truth"], run.pose[0])
+    assert (tmp_path / "c.png").stat().st_size > 1000
+    for bad, name in ((["--blocks", "1:1"], "0 <= A < B <= 2"),
+                      (["--blocks", "0:2", "--walkers", "5"], "n_walkers"),
+                      (["--blocks", "0:2", "--steps", "0"], "n_steps"),
+                      (["--blocks", "x"], "--blocks")):
+        capsys.readouterr()
+        assert main([*common, *bad]) == 2
+        assert name in capsys.readouterr().err
+
+
+def test_autocorr_check_survives_a_frozen_chain() -> None:
+    # regression: a chain whose walkers never moved gave tau = NaN and crashed the CLI
+    chain = np.zeros((20, 6, 3))
+    chain[:, :, 0] = np.random.default_rng(0).normal(size=(20, 6))
+    tau, discard, ok = post.autocorr_check(chain, 50.0)
+    assert np.all(np.isfinite(tau)) and tau.max() == 20 - discard and not ok
