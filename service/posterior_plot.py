@@ -76,8 +76,8 @@ def corner_figure(result: PosteriorResult, truth: NDArray[np.float64] | None = N
             f"y {math.sqrt(m.cov[1, 1]) * 100:.1f} cm, heading "
             f"{math.degrees(m.heading_circular_std_rad):.1f} deg; tau {np.max(m.tau):.0f}, "
             f"acc {m.acceptance_fraction:.2f}, {'converged' if m.converged else 'NOT converged'}")
-    fig.text(0.42, 0.97, "\n".join(lines), va="top", ha="left", fontsize=7.5)
-    fig.tight_layout(rect=(0, 0, 1, 0.8))
+    fig.text(0.40, 0.985, "\n".join(lines), va="top", ha="left", fontsize=7.5)
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
     return fig
 
 
