@@ -1,0 +1,12 @@
+"""Localization on the acoustic wall map (paper Fig. 1(b)).
+
+``motion``           odometry motion model (AMCL alpha1-4)
+``sensor``           likelihood of a HeatMap given a pose and G (lookup tables, two models)
+``resampling``       log-weights and systematic resampling (numba + numpy twin)
+``particle_filter``  ParticleFilter (augmented MCL, KLD, checkpoints) and run_filter
+``grid_filter``      exact histogram filter, the reference posterior
+``estimate``         PoseEstimate, modes, circular statistics, track metrics
+``posterior``        emcee pose posterior (issue 8)
+
+This package never imports ``service``.
+"""
