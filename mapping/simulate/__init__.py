@@ -23,6 +23,7 @@ from mapping.simulate.base import (
     TrajectoryLike,
     assemble_run,
 )
+from mapping.simulate.fdtd import FdtdConfig, iter_fdtd_blocks
 from mapping.simulate.ism import IsmConfig, iter_ism_blocks
 
 __all__ = [
@@ -41,8 +42,11 @@ __all__ = [
 
 BlockIterator = Callable[..., Iterator[SimBlock]]
 
-#: Engine name -> (config type, block generator). Another engine adds itself here.
-ENGINES: dict[str, tuple[type, BlockIterator]] = {"ism": (IsmConfig, iter_ism_blocks)}
+#: Engine name -> (config type, block generator): the image-source default and the FDTD reference.
+ENGINES: dict[str, tuple[type, BlockIterator]] = {
+    "ism": (IsmConfig, iter_ism_blocks),
+    "fdtd": (FdtdConfig, iter_fdtd_blocks),
+}
 
 
 def engine_name(engine_config: Any) -> str:

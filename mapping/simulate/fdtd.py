@@ -983,12 +983,3 @@ def default_chunk_steps(setup: FdtdSetup) -> int:
     nx, ny = setup.grid.shape
     return int(max(20, min(5000, 3e8 // (nx * ny))))
 
-
-def _register() -> None:
-    """Make ``FdtdConfig`` select this engine in :func:`mapping.simulate.iter_blocks`."""
-    from mapping.simulate import ENGINES
-
-    ENGINES.setdefault("fdtd", (FdtdConfig, iter_fdtd_blocks))
-
-
-_register()
