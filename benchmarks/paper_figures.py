@@ -111,8 +111,9 @@ def draw(ax: Any, G: np.ndarray, extent_m: tuple[float, float, float, float],
         ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="cyan", lw=0.6, alpha=0.7)
     if poses is not None:
         ax.plot(poses[:, 0], poses[:, 1], ".", color="white", ms=1.5)
-    ax.set_xlim(VIEW[0], VIEW[1])
-    ax.set_ylim(VIEW[2], VIEW[3])
+    lo, hi = segments.reshape(-1, 2).min(axis=0), segments.reshape(-1, 2).max(axis=0)
+    ax.set_xlim(min(VIEW[0], lo[0] - 1.0), max(VIEW[1], hi[0] + 1.0))
+    ax.set_ylim(min(VIEW[2], lo[1] - 1.0), max(VIEW[3], hi[1] + 1.0))
     ax.set_title(title, fontsize=8)
     ax.tick_params(labelsize=6)
 
