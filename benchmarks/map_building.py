@@ -14,8 +14,8 @@ cached in ``out/bench_runs/``; simulation time is never counted. Measured in one
   user waits for: "cold") and in a pool whose workers have already started ("warm").
 
 Wall-clock medians and CPU times are recorded with the load average (the machine is shared).
-Writes ``benchmarks/results/mapping.json`` and ``mapping.png``. Run:
-``python benchmarks/mapping.py``.
+Writes ``benchmarks/results/map_building.json`` and ``map_building.png``. Run:
+``python benchmarks/map_building.py``.
 """
 
 from __future__ import annotations
@@ -161,7 +161,7 @@ def main() -> None:
         "goal_met_excluding_heatmaps_cpu_time": paper_cpu <= 1.0,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "mapping.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / "map_building.json").write_text(json.dumps(result, indent=2))
     fig, ax = plt.subplots(figsize=(7, 4))
     labels = ["paper\n(G only)", "paper\nnumpy twin", "inverse\n(solve)", "heat maps",
               "batch\n1 worker", "batch\n2 workers\n(warm)"]
@@ -175,7 +175,7 @@ def main() -> None:
     for i, r in enumerate(rates):
         ax.text(i, r, f"{r:.3g}", ha="center", va="bottom", fontsize=8)
     fig.tight_layout()
-    fig.savefig(RESULTS / "mapping.png", dpi=110)
+    fig.savefig(RESULTS / "map_building.png", dpi=110)
     print(json.dumps(result, indent=2))
 
 
