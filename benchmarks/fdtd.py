@@ -19,7 +19,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-# benchmarks/mapping.py would shadow the mapping package when run as a script
+# a script run from benchmarks/ must not shadow the packages: import from the repository root
 _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))

@@ -33,7 +33,7 @@ import matplotlib
 import matplotlib.ticker
 import numpy as np
 
-# benchmarks/mapping.py would shadow the mapping package: import from the repository root
+# a script run from benchmarks/ must not shadow the packages: import from the repository root
 _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))
