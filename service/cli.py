@@ -474,8 +474,17 @@ def _cmd_heatmap(args: argparse.Namespace) -> int:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="built-in demo: heat map of a block next to one wall")
+    p = sub.add_parser(
+        "demo",
+        help="the main job end to end: a heat map next to one wall, then the paper scene's "
+        "default map and a held-out run localized through the HTTP API",
+    )
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    p.add_argument("--heatmap-only", action="store_true", help="stop after the heat-map part")
+    p.add_argument("--blocks", type=int, help="stream only the first N blocks of the run")
+    p.add_argument("--particles", type=int, default=2000, help="particles (default 2000)")
+    p.add_argument("--global", dest="global_init", action="store_true",
+                   help="start the filter globally instead of from the first true pose")
     p.set_defaults(func=_cmd_demo)
 
 
@@ -506,6 +515,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                             max_range_m=4.0, truth=(truth.range_m, truth.angle_rad))
     write_run(out / "demo_run.npz", run)
     print(f"wrote {png} and {out / 'demo_run.npz'}")
+    if args.heatmap_only:
+        return 0
+    from service.demo_client import run_demo
+
+    print("\ndemo, part 2: the main job through the HTTP API (map -> live localization)")
+    run_demo(out / "api", args.blocks, args.particles, args.global_init)
     return 0
 
 

@@ -52,6 +52,10 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
         info = wait_for_map(srv.url, "default")
         print(f"map 'default': {info['shape'][1]} x {info['shape'][0]} cells at "
               f"{info['resolution_m'] * 100:.0f} mm, method {info['method']}")
+        png = httpx.get(f"{srv.url}/maps/default/image.png", timeout=60)
+        png.raise_for_status()
+        (work_dir / "map.png").write_bytes(png.content)
+        print(f"wrote {work_dir / 'map.png'} (GET /maps/default/image.png)")
         run = simulate_default_run(HELD_OUT_PATH, seed=HELD_OUT_SEED, n_blocks=n_blocks)
         print(f"held-out run: path {HELD_OUT_PATH}, noise seed {HELD_OUT_SEED}, "
               f"{run.n_blocks} blocks; init {'global' if global_init else 'tracked'}")
