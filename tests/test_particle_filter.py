@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -335,19 +336,10 @@ def test_config_validation() -> None:
     assert FilterConfig.from_json(FilterConfig(n_particles=7).to_json()).n_particles == 7
 
 
-@pytest.mark.slow
-def test_end_to_end_on_simulated_runs() -> None:
-    """The real pipeline: image-source simulation (order 2) -> heat maps -> map G from a
-    mapping run (L-room, curve, seed 0) -> localize a held-out run (same curve at 0.15 m/s,
-    seed 1, odometry noise) from a global start. The L-room is mirror symmetric about its
-    diagonal, and a mirror image is exactly what the sensor's left/right fold cannot see,
-    so the mirror pose is as likely as the truth until the path turns (block ~14).
-    Pass: within 10 cm / 10 deg by block 18 and staying there; RMSE after that <= 3 cm
-    and <= 3 deg."""
-    from localization.estimate import track_metrics
-    from localization.particle_filter import run_filter
+@pytest.fixture(scope="module")
+def simulated() -> tuple[object, object]:
+    """Map G from an L-room mapping run and a held-out run (image sources, order 2)."""
     from mapping.build import BuildParams, RunSource, build_map
-    from mapping.heatmap import heatmap_of_run
     from mapping.path import builtin_path
     from mapping.scene import builtin_scene
     from mapping.signal import SonarConfig
@@ -360,12 +352,56 @@ def test_end_to_end_on_simulated_runs() -> None:
     held = simulate_run(scene, builtin_path("l-room-curve", 0.15), config, 38,
                         IsmConfig(order=2, snr_db=20.0, odometry_noise_m_s=0.005),
                         np.random.default_rng(1), 1)
+    return wall_map, held
+
+
+@pytest.mark.slow
+def test_end_to_end_on_simulated_runs(simulated: tuple[Any, Any]) -> None:
+    """The real pipeline: image-source simulation (order 2) -> heat maps -> map G from a
+    mapping run (L-room, curve, seed 0) -> localize a held-out run (same curve at 0.15 m/s,
+    seed 1, odometry noise) from a global start. The L-room is mirror symmetric about its
+    diagonal, and a mirror image is exactly what the sensor's left/right fold cannot see,
+    so the mirror pose is as likely as the truth until the path turns (block ~14).
+    Pass: within 10 cm / 10 deg by block 18 and staying there; RMSE after that <= 3 cm
+    and <= 3 deg."""
+    from localization.estimate import track_metrics
+    from localization.particle_filter import run_filter
+    from mapping.heatmap import heatmap_of_run
+
+    wall_map, held = simulated
     tables = build_tables(wall_map, SensorConfig())
     pf = ParticleFilter(tables, FilterConfig(n_particles=3000), np.random.default_rng(2))
     ests = list(run_filter(pf, (heatmap_of_run(held, k) for k in range(held.n_blocks)),
-                           held.speed_m_s, held.yaw_rate_rad_s, held.t_s, config.block_s))
+                           held.speed_m_s, held.yaw_rate_rad_s, held.t_s,
+                           held.config.block_s))
     m = track_metrics(np.array([e.pose for e in ests]), np.array([e.cov for e in ests]),
                       held.pose)
     assert m.blocks_to_converge is not None and m.blocks_to_converge <= 18
     assert m.position_rmse_m <= 0.03
     assert math.degrees(m.heading_rmse_rad) <= 3.0
+
+
+@pytest.mark.slow
+def test_cli_localize_tracked(simulated: tuple[Any, Any], tmp_path: Any,
+                              capsys: pytest.CaptureFixture[str]) -> None:
+    """``omnisonar localize --init tracked --json`` on files: converged from block 0, RMSE
+    <= 3 cm, and the CSV track has one row per block."""
+    import json
+
+    from mapping.mapfile import write_map
+    from mapping.runfile import write_run
+    from service.cli import main
+
+    wall_map, held = simulated
+    write_map(tmp_path / "G.npz", wall_map)
+    write_run(tmp_path / "run.npz", held)
+    rc = main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+               "--init", "tracked", "--particles", "1000", "--json",
+               "--out", str(tmp_path / "track.csv")])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["blocks_to_converge"] == 0 and out["position_rmse_m"] <= 0.03
+    rows = np.loadtxt(tmp_path / "track.csv", delimiter=",", skiprows=1)
+    assert rows.shape == (held.n_blocks, 13)
+    assert main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+                 "--particles", "0"]) == 2
