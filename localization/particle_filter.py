@@ -94,7 +94,7 @@ class FilterConfig:
     alpha_fast: float = 0.5
     max_inject_fraction: float = 0.25
     inject_threshold_nats: float = 1.0
-    inject_candidates: int = 8
+    inject_candidates: int = 16
     global_oversample: int = 10
     kld: bool = False
     kld_epsilon: float = 0.05

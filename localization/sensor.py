@@ -105,7 +105,7 @@ class SensorConfig:
     min_speed_m_s: float = 0.03
     map_blur_cells: float = 1.0
     range_gain_exponent: float = 1.0
-    keep_fraction: float = 0.15
+    keep_fraction: float = 0.10
 
     def __post_init__(self) -> None:
         if self.model not in ("correlation", "range"):
