@@ -1,5 +1,6 @@
 """Private numba kernels of the staggered-grid FDTD (paper eqs. 9-11); imported only by
-:mod:`mapping.simulate.fdtd`, which validates every input first.
+:mod:`mapping.simulate.fdtd_solver` (re-exported by :mod:`mapping.simulate.fdtd`), which
+validates every input first.
 
 Layout (first index x / row ``i``, second index y / column ``j``; ``f`` = field):
 
