@@ -13,6 +13,9 @@ Measured per configuration (filter x sensor model x particle count):
   within 10 cm / 10 deg from block 8 on and staying there ("converged within 8 blocks"),
   reported for the curve runs (the straight runs keep a mirror ambiguity until they turn,
   and never turn);
+- both raw and modulo the scenes' symmetries as this sensor sees them (pillar: 180 deg
+  rotation and two mirror axes; L-room: mirror about its diagonal), per block against the
+  image nearest to the estimate;
 - time per update (median, p95), measured around ``step`` after a warm-up, as wall time
   and as process CPU time (the machine is shared: wall times carry other jobs' load, the
   load average is recorded);
@@ -84,12 +87,34 @@ def scene_data(scene: str) -> tuple[WallMap, dict[str, Run]]:
                                                                            "straight")}
 
 
+def images(scene: str, truth: np.ndarray) -> list[np.ndarray]:
+    """The truth and its images under the scene's symmetries as this sensor sees them
+    (rigid motions, and mirror images: the left/right fold cannot tell those apart)."""
+    x, y, h = truth[:, 0], truth[:, 1], truth[:, 2]
+    out = [truth]
+    if scene == "l-room":        # mirror about the diagonal y = x
+        out.append(np.column_stack([y, x, np.pi / 2 - h]))
+    if scene == "pillar":        # 180 deg about (2.5, 2.0) and the two mirror axes
+        out += [np.column_stack([5 - x, 4 - y, h + np.pi]),
+                np.column_stack([5 - x, y, np.pi - h]), np.column_stack([x, 4 - y, -h])]
+    for im in out:
+        im[:, 2] = np.angle(np.exp(1j * im[:, 2]))
+    return out
+
+
+def modulo_symmetry(poses: np.ndarray, truth: np.ndarray, scene: str) -> np.ndarray:
+    """Per block, the image of the truth nearest to the estimate."""
+    ims = np.stack(images(scene, truth))                     # (n_images, n, 3)
+    d = np.hypot(ims[:, :, 0] - poses[None, :, 0], ims[:, :, 1] - poses[None, :, 1])
+    return ims[np.argmin(d, axis=0), np.arange(truth.shape[0])]
+
+
 def run_blocks(run: Run) -> list[HeatMap]:
     return [heatmap_of_run(run, k) for k in range(run.n_blocks)]
 
 
-def track(filt: Steppable, run: Run, hms: list[HeatMap], n_blocks: int | None = None
-          ) -> dict[str, Any]:
+def track(filt: Steppable, run: Run, hms: list[HeatMap], n_blocks: int | None = None,
+          scene: str = "") -> dict[str, Any]:
     """Step through the run; metrics and per-update times."""
     v, w, dt = block_odometry(run.speed_m_s, run.yaw_rate_rad_s, run.t_s, run.config.block_s)
     n = run.n_blocks if n_blocks is None else min(n_blocks, run.n_blocks)
@@ -102,14 +127,17 @@ def track(filt: Steppable, run: Run, hms: list[HeatMap], n_blocks: int | None = 
         poses.append(est.pose)
         covs.append(est.cov)
     m = track_metrics(np.array(poses), np.array(covs), run.pose[:n])
-    return {"metrics": dataclasses.asdict(m), "times_s": times[1:], "cpu_s": cpu[1:]}
+    sym = track_metrics(np.array(poses), np.array(covs),
+                        modulo_symmetry(np.array(poses), run.pose[:n], scene))
+    return {"metrics": dataclasses.asdict(m), "metrics_mod_sym": dataclasses.asdict(sym),
+            "times_s": times[1:], "cpu_s": cpu[1:]}
 
 
 def pf_case(tables: SensorTables, n: int, run: Run, hms: list[HeatMap], seed: int,
-            tracked: bool) -> dict[str, Any]:
+            tracked: bool, scene: str = "") -> dict[str, Any]:
     pf = ParticleFilter(tables, FilterConfig(n_particles=n), np.random.default_rng(seed),
                         pose=run.pose[0] if tracked else None, cov=PRIOR if tracked else None)
-    return track(pf, run, hms)
+    return track(pf, run, hms, scene=scene)
 
 
 def summarize_cases(tracked: list[dict[str, Any]], global_: list[dict[str, Any]]
@@ -121,7 +149,12 @@ def summarize_cases(tracked: list[dict[str, Any]], global_: list[dict[str, Any]]
     times = np.concatenate([c["times_s"] for c in tracked + global_])
     cpu = np.concatenate([c["cpu_s"] for c in tracked + global_])
     conv = [c["metrics"]["blocks_to_converge"] for c in global_]
+    conv_sym = [c["metrics_mod_sym"]["blocks_to_converge"] for c in global_]
     return {
+        "tracking_lost_runs_mod_sym": sum(c["metrics_mod_sym"]["blocks_to_converge"] != 0
+                                          for c in tracked),
+        "global_success_rate_8_blocks_mod_sym": float(np.mean(
+            [b is not None and b <= 8 for b in conv_sym])) if conv_sym else math.nan,
         "tracking_position_rmse_m": rmse("position_rmse_m"),
         "tracking_heading_rmse_deg": math.degrees(rmse("heading_rmse_rad")),
         "tracking_lost_runs": sum(c["metrics"]["blocks_to_converge"] != 0 for c in tracked),
@@ -194,16 +227,16 @@ def main() -> int:
             tracked, global_ = [], []
             for s, (_, runs, hms) in data.items():
                 for name, run in runs.items():
-                    tracked.append(pf_case(tables[s], n, run, hms[name], 0, True))
+                    tracked.append(pf_case(tables[s], n, run, hms[name], 0, True, s))
                     if name == "curve" and n != 2000:
                         seeds = args.seeds if n <= 3000 else 1     # keep the runtime modest
-                        global_ += [pf_case(tables[s], n, run, hms[name], 1 + seed, False)
-                                    for seed in range(seeds)]
+                        global_ += [pf_case(tables[s], n, run, hms[name], 1 + seed, False,
+                                            s) for seed in range(seeds)]
             row = {"filter": "pf", "model": model, "particles": n,
                    **summarize_cases(tracked, global_)}
             results["configs"].append(row)
             print(json.dumps(row), flush=True)
-        grid = [track(GridFilter(tables[s]), d[1]["curve"], d[2]["curve"], GRID_BLOCKS)
+        grid = [track(GridFilter(tables[s]), d[1]["curve"], d[2]["curve"], GRID_BLOCKS, s)
                 for s, d in data.items()]
         row = {"filter": "grid", "model": model, "particles": None,
                **summarize_cases([], grid)}
@@ -216,7 +249,8 @@ def main() -> int:
         for s, (_, runs, hms) in data.items():
             tab = corr_tables[s]
             tab = dataclasses.replace(tab, config=dataclasses.replace(tab.config, beta=beta))
-            cases += [pf_case(tab, 1000, run, hms[name], 0, True) for name, run in runs.items()]
+            cases += [pf_case(tab, 1000, run, hms[name], 0, True, s)
+                      for name, run in runs.items()]
         row = {"beta": beta, **summarize_cases(cases, [])}
         results["beta_sweep"].append(row)
         print(json.dumps(row), flush=True)
@@ -249,6 +283,8 @@ def plot(results: dict[str, Any], path: Path) -> None:
                      color=colors[model], label=f"pf, {model}")
         axes[1].plot(t, [r["global_success_rate_8_blocks"] for r in rows], "o-",
                      color=colors[model], label=f"pf, {model}")
+        axes[1].plot(t, [r["global_success_rate_8_blocks_mod_sym"] for r in rows], "o--",
+                     color=colors[model], alpha=0.5, label=f"pf, {model}, modulo symmetry")
         for r, x in zip(rows, t, strict=True):
             lost = r["tracking_lost_runs"]
             axes[0].annotate(f"{r['particles']}" + (f" ({lost} lost)" if lost else ""),
