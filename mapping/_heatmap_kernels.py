@@ -1,7 +1,9 @@
-"""numba kernels of :mod:`mapping.heatmap` (private; imported only by ``mapping/heatmap.py``).
+"""numba kernels of :mod:`mapping.heatmap` (private; imported only by
+``mapping/doppler_resampling.py``, the resampling stage of the heat map).
 
-The plain numpy twin of every kernel lives in :mod:`mapping.heatmap` (``_resample_fold_numpy``)
-and the tests compare the two.
+The plain numpy twin of every kernel lives in :mod:`mapping.doppler_resampling`
+(``_resample_fold_numpy``, ``_spectral_bank_numpy``, ``_strip_numpy``) and the tests compare the
+two through ``doppler_heatmap(..., engine=...)``.
 """
 
 from __future__ import annotations
