@@ -51,7 +51,7 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
         print(f"service up at {srv.url} (pid {srv.pid})")
         info = wait_for_map(srv.url, "default")
         print(f"map 'default': {info['shape'][1]} x {info['shape'][0]} cells at "
-              f"{info['resolution_m'] * 100:.0f} mm, method {info['method']}")
+              f"{info['resolution_m'] * 1000:.0f} mm, method {info['method']}")
         png = httpx.get(f"{srv.url}/maps/default/image.png", timeout=60)
         png.raise_for_status()
         (work_dir / "map.png").write_bytes(png.content)
