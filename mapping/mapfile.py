@@ -29,14 +29,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.runfile import atomic_savez
+from mapping.atomicfile import atomic_savez, atomic_write_bytes
 from mapping.wallmap import WallMap
 
 FORMAT = "omnisonar-map-1"
@@ -150,21 +149,6 @@ def ros_yaml_text(wallmap: WallMap, image_name: str, occupied_thresh: float = 0.
     )
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_ros_map(pgm_path: str | os.PathLike[str], wallmap: WallMap,
                   scale_fraction: float = 0.5) -> tuple[Path, Path]:
     """Write ``NAME.pgm`` and ``NAME.yaml`` (map_server format); returns both paths."""
@@ -172,8 +156,8 @@ def write_ros_map(pgm_path: str | os.PathLike[str], wallmap: WallMap,
     if pgm.suffix.lower() != ".pgm":
         raise ValueError(f"pgm_path must end in .pgm, got {pgm}")
     yaml = pgm.with_suffix(".yaml")
-    _atomic_write(pgm, occupancy_pgm_bytes(wallmap.G, scale_fraction))
-    _atomic_write(yaml, ros_yaml_text(wallmap, pgm.name).encode())
+    atomic_write_bytes(pgm, occupancy_pgm_bytes(wallmap.G, scale_fraction))
+    atomic_write_bytes(yaml, ros_yaml_text(wallmap, pgm.name).encode())
     return pgm, yaml
 
 

@@ -17,12 +17,12 @@ import csv
 import io
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mapping.atomicfile import atomic_write_bytes
 from mapping.recording import POSE_COLUMNS, PoseLog
 
 
@@ -74,7 +74,7 @@ def write_pose_csv(path: str | os.PathLike[str], log: PoseLog) -> Path:
     w.writerow(POSE_COLUMNS)
     table = np.column_stack([getattr(log, c) for c in POSE_COLUMNS])
     w.writerows([[repr(float(v)) for v in row] for row in table])
-    _atomic_write(path, buf.getvalue().encode())
+    atomic_write_bytes(path, buf.getvalue().encode())
     return path
 
 
@@ -112,20 +112,6 @@ def write_wav(path: str | os.PathLike[str], samples: NDArray[np.floating], fs_hz
         raise ValueError(f"fs_hz must be a whole number of Hz for WAV, got {fs_hz}")
     buf = io.BytesIO()
     wavfile.write(buf, int(fs_hz), np.asarray(samples, dtype=np.float32))
-    _atomic_write(path, buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mapping.atomicfile import atomic_savez
 from mapping.signal import SonarConfig
 
 FORMAT = "omnisonar-run-1"
@@ -125,22 +125,6 @@ def write_run(path: str | os.PathLike[str], run: Run) -> Path:
         arrays["scene"] = np.array(run.scene)
     atomic_savez(path, arrays)
     return path
-
-
-def atomic_savez(path: Path, arrays: dict[str, Any]) -> None:
-    """``np.savez`` to a temporary file beside ``path``, then rename over it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def read_run(path: str | os.PathLike[str]) -> Run:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mapping.atomicfile import atomic_savez, atomic_write
 from mapping.signal import SonarConfig, tx_block
 
 if TYPE_CHECKING:
@@ -27,18 +28,6 @@ def _load_config(path: str | None) -> SonarConfig:
     if path is None:
         return SonarConfig()
     return SonarConfig.from_json(Path(path).read_text())
-
-
-def _atomic_write_bytes(path: Path, write: Callable[[Path], None]) -> None:
-    """Call ``write(tmp)`` on a temporary name beside ``path``, then rename into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        tmp.replace(path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 # ---- signal ---------------------------------------------------------------------------
@@ -55,7 +44,7 @@ def _cmd_signal(args: argparse.Namespace) -> int:
     config = _load_config(args.config)
     block = tx_block(config).astype(np.float32)
     out = Path(args.out)
-    _atomic_write_bytes(out, lambda tmp: wavfile.write(tmp, int(config.fs_hz), block))
+    atomic_write(out, lambda fh: wavfile.write(fh, int(config.fs_hz), block), private=False)
     print(
         f"wrote {out}: {block.size} samples at {config.fs_hz:g} Hz "
         f"({config.block_s:.4f} s, M={config.repetitions}, L={config.sequence_length})"
@@ -208,7 +197,7 @@ def _cmd_posterior(args: argparse.Namespace) -> int:
     from localization import posterior as post
     from localization.sensor import SensorConfig, build_tables
     from mapping.mapfile import read_map
-    from mapping.runfile import atomic_savez, read_run
+    from mapping.runfile import read_run
 
     try:
         a, b = (int(v) for v in args.blocks.split(":"))
@@ -382,7 +371,7 @@ def _simulate_fdtd(args: argparse.Namespace, scene: object, trajectory: object,
 
     from tqdm import tqdm
 
-    from mapping.runfile import atomic_savez, write_run
+    from mapping.runfile import write_run
     from mapping.simulate.base import assemble_run
     from mapping.simulate.fdtd import (
         FdtdConfig,
@@ -451,7 +440,7 @@ def _add_heatmap(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_heatmap(args: argparse.Namespace) -> int:
     from mapping.heatmap import find_peak, heatmap_of_run
-    from mapping.runfile import atomic_savez, read_run
+    from mapping.runfile import read_run
 
     run = read_run(args.run)
     hm = heatmap_of_run(run, args.block, bank=args.bank)
@@ -718,9 +707,9 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     if args.out:
         header = ("block,x_m,y_m,yaw_rad,std_x_m,std_y_m,std_yaw_rad,ess,converged,n_modes,"
                   "direction_observable,err_m,err_rad")
-        _atomic_write_bytes(Path(args.out), lambda tmp: np.savetxt(
-            tmp, np.array(rows, dtype=np.float64), delimiter=",", header=header, comments="",
-            fmt="%.6g"))
+        atomic_write(Path(args.out), lambda fh: np.savetxt(
+            fh, np.array(rows, dtype=np.float64), delimiter=",", header=header, comments="",
+            fmt="%.6g"), private=False)
     if args.json:
         print(json.dumps(summary, indent=2, default=float))
     elif tracked.any():

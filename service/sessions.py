@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import secrets
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.runfile import atomic_savez
+from mapping.atomicfile import atomic_savez
 from service.engine import (
     BlockInput,
     EstimateOut,
@@ -135,18 +134,7 @@ def write_checkpoint(path: Path, session: Session, fsync: bool = True) -> None:
         "state": np.array(json.dumps(tree)),
         **arrays,
     }
-    if fsync:
-        atomic_savez(path, payload)
-        return
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **payload)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_savez(path, payload, fsync=fsync)
 
 
 def read_checkpoint(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
