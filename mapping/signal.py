@@ -27,7 +27,7 @@ from scipy.signal import max_len_seq
 FloatArray = NDArray[np.float64]
 
 #: Oversampling factor of the table behind :func:`transmitted_at`.
-_TABLE_UPSAMPLE = 32
+TABLE_UPSAMPLE = 32
 
 
 @dataclass(frozen=True)
@@ -267,26 +267,48 @@ def tx_block(config: SonarConfig, block_index: int = 0) -> FloatArray:
     return tx_samples(config, block_index * config.block_samples, config.block_samples)
 
 
-@lru_cache(maxsize=16)
-def _tx_table(config: SonarConfig) -> FloatArray:
-    """Band-limited periodic interpolation of one period on a grid ``_TABLE_UPSAMPLE`` finer.
+def periodic_table(spectrum: NDArray[np.complexfloating], n_period: int) -> FloatArray:
+    """Band-limited periodic interpolant of one period on a grid ``TABLE_UPSAMPLE`` finer.
 
+    ``spectrum`` is the ``rfft`` of a real period of ``n_period`` samples (possibly filtered).
     Exact at the table points (zero-padding of the DFT; the Nyquist bin is split evenly
-    between +fs/2 and -fs/2 so the interpolant is real and symmetric).
+    between +fs/2 and -fs/2 so the interpolant is real and symmetric). The table carries two
+    wrap-around samples before and three after, for :func:`periodic_table_at`; read-only.
     """
-    period = tx_period(config)
-    p = period.size
-    spec = np.fft.rfft(period)
-    fine = p * _TABLE_UPSAMPLE
+    fine = n_period * TABLE_UPSAMPLE
     padded = np.zeros(fine // 2 + 1, dtype=complex)
-    padded[: spec.size] = spec
-    if p % 2 == 0:
-        padded[p // 2] *= 0.5
-    table = np.fft.irfft(padded, n=fine) * _TABLE_UPSAMPLE
+    padded[: spectrum.size] = spectrum
+    if n_period % 2 == 0:
+        padded[n_period // 2] *= 0.5
+    table = np.fft.irfft(padded, n=fine) * TABLE_UPSAMPLE
     # two wrap-around samples on each side for the cubic stencil
     table = np.concatenate([table[-2:], table, table[:3]])
     table.setflags(write=False)
     return table
+
+
+def periodic_table_at(table: FloatArray, u: NDArray[np.floating]) -> FloatArray:
+    """4-point cubic Lagrange interpolation of a :func:`periodic_table` at fine-grid
+    positions ``u`` (table samples, any real value: the table is periodic)."""
+    fine = table.size - 5
+    u = np.mod(u, fine)
+    i = np.floor(u)
+    f = u - i
+    k = i.astype(np.int64) + 2  # offset of the two leading pad samples
+    ym1, y0, y1, y2 = table[k - 1], table[k], table[k + 1], table[k + 2]
+    # 4-point Lagrange weights at nodes -1, 0, 1, 2
+    wm1 = -f * (f - 1.0) * (f - 2.0) / 6.0
+    w0 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
+    w1 = -(f + 1.0) * f * (f - 2.0) / 2.0
+    w2 = (f + 1.0) * f * (f - 1.0) / 6.0
+    return np.asarray(wm1 * ym1 + w0 * y0 + w1 * y1 + w2 * y2)
+
+
+@lru_cache(maxsize=16)
+def _tx_table(config: SonarConfig) -> FloatArray:
+    """:func:`periodic_table` of the transmitted period."""
+    period = tx_period(config)
+    return periodic_table(np.fft.rfft(period), period.size)
 
 
 def transmitted_at(t_s: NDArray[np.floating] | float, config: SonarConfig) -> FloatArray:
@@ -307,19 +329,8 @@ def transmitted_at(t_s: NDArray[np.floating] | float, config: SonarConfig) -> Fl
     numpy.ndarray
         Signal values, same shape as ``t_s``.
     """
-    table = _tx_table(config)
-    fine = config.period_samples * _TABLE_UPSAMPLE
-    u = np.mod(np.asarray(t_s, dtype=np.float64) * (config.fs_hz * _TABLE_UPSAMPLE), fine)
-    i = np.floor(u)
-    f = u - i
-    k = i.astype(np.int64) + 2  # offset of the two leading pad samples
-    ym1, y0, y1, y2 = table[k - 1], table[k], table[k + 1], table[k + 2]
-    # 4-point Lagrange weights at nodes -1, 0, 1, 2
-    wm1 = -f * (f - 1.0) * (f - 2.0) / 6.0
-    w0 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-    w1 = -(f + 1.0) * f * (f - 2.0) / 2.0
-    w2 = (f + 1.0) * f * (f - 1.0) / 6.0
-    return np.asarray(wm1 * ym1 + w0 * y0 + w1 * y1 + w2 * y2)
+    u = np.asarray(t_s, dtype=np.float64) * (config.fs_hz * TABLE_UPSAMPLE)
+    return periodic_table_at(_tx_table(config), u)
 
 
 def transmitted_exact(t_s: NDArray[np.floating], config: SonarConfig) -> FloatArray:

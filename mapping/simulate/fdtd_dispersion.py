@@ -18,14 +18,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
-from mapping.signal import SonarConfig, tx_period
+from mapping.signal import TABLE_UPSAMPLE, SonarConfig, periodic_table, periodic_table_at, tx_period
 from mapping.simulate.fdtd_config import FdtdConfig, injected_band
 from mapping.simulate.fdtd_grid import FdtdGrid
 
 FloatArray = NDArray[np.float64]
 
 _RESAMPLE_HALF_WIDTH = 96
-_TABLE_UPSAMPLE = 32
 
 
 # ---- numerical dispersion -----------------------------------------------------------------
@@ -160,15 +159,7 @@ def _source_table(sonar: SonarConfig, fdtd: FdtdConfig, filtered: bool) -> Float
     spec = np.fft.rfft(period)
     if filtered:
         spec = spec * source_filter(np.fft.rfftfreq(p, 1 / sonar.fs_hz), sonar, fdtd)
-    fine = p * _TABLE_UPSAMPLE
-    padded = np.zeros(fine // 2 + 1, dtype=complex)
-    padded[: spec.size] = spec
-    if p % 2 == 0:
-        padded[p // 2] *= 0.5
-    table = np.fft.irfft(padded, n=fine) * _TABLE_UPSAMPLE
-    table = np.concatenate([table[-2:], table, table[:3]])
-    table.setflags(write=False)
-    return table
+    return periodic_table(spec, p)
 
 
 def source_signal(t_s: ArrayLike, sonar: SonarConfig, fdtd: FdtdConfig,
@@ -179,17 +170,8 @@ def source_signal(t_s: ArrayLike, sonar: SonarConfig, fdtd: FdtdConfig,
     Periodic band-limited interpolation (cubic Lagrange on a 32x table) of the filtered
     period spectrum.
     """
-    table = _source_table(sonar, fdtd, filtered)
-    fine = sonar.period_samples * _TABLE_UPSAMPLE
-    u = np.mod(np.asarray(t_s, dtype=np.float64) * (sonar.fs_hz * _TABLE_UPSAMPLE), fine)
-    i = np.floor(u)
-    f = u - i
-    k = i.astype(np.int64) + 2
-    wm1 = -f * (f - 1.0) * (f - 2.0) / 6.0
-    w0 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-    w1 = -(f + 1.0) * f * (f - 2.0) / 2.0
-    w2 = (f + 1.0) * f * (f - 1.0) / 6.0
-    return np.asarray(wm1 * table[k - 1] + w0 * table[k] + w1 * table[k + 1] + w2 * table[k + 2])
+    u = np.asarray(t_s, dtype=np.float64) * (sonar.fs_hz * TABLE_UPSAMPLE)
+    return periodic_table_at(_source_table(sonar, fdtd, filtered), u)
 
 
 def resample_to_rate(series: FloatArray, t_first_s: float, step_s: float, fs_hz: float,

@@ -37,7 +37,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.signal import SonarConfig, transmitted_at, tx_period
+from mapping.signal import (
+    TABLE_UPSAMPLE,
+    SonarConfig,
+    periodic_table,
+    periodic_table_at,
+    transmitted_at,
+    tx_period,
+)
 from mapping.simulate._ism_kernels import _render
 from mapping.simulate.base import PathTable, SceneLike, SimBlock, TrajectoryLike
 from mapping.simulate.images import ImageSet, TraceResult, candidate_images, trace_images
@@ -45,7 +52,6 @@ from mapping.simulate.images import ImageSet, TraceResult, candidate_images, tra
 FloatArray = NDArray[np.float64]
 
 #: Oversampling of the interpolation table (same scheme as :func:`mapping.signal.transmitted_at`).
-_TABLE_UPSAMPLE = 32
 _SPREADINGS = ("2d", "3d")
 _FRACTIONAL_DELAYS = ("table", "sinc")
 
@@ -210,17 +216,7 @@ def signal_period(config: SonarConfig, spreading: str) -> FloatArray:
 def _table(config: SonarConfig, spreading: str) -> FloatArray:
     """Periodic band-limited interpolant of :func:`signal_period` on a 32x finer grid."""
     period = signal_period(config, spreading)
-    p = period.size
-    spec = np.fft.rfft(period)
-    fine = p * _TABLE_UPSAMPLE
-    padded = np.zeros(fine // 2 + 1, dtype=complex)
-    padded[: spec.size] = spec
-    if p % 2 == 0:
-        padded[p // 2] *= 0.5
-    table = np.fft.irfft(padded, n=fine) * _TABLE_UPSAMPLE
-    table = np.concatenate([table[-2:], table, table[:3]])
-    table.setflags(write=False)
-    return table
+    return periodic_table(np.fft.rfft(period), period.size)
 
 
 def spreading_power(spreading: str) -> float:
@@ -484,7 +480,7 @@ def render_stretch(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) ->
         engine.validity_grid_s,
         engine.fade_s / (2.0 * engine.validity_grid_s),
         _table(config, engine.spreading),
-        _TABLE_UPSAMPLE,
+        TABLE_UPSAMPLE,
         np.ascontiguousarray(signal_period(config, engine.spreading)),
         half_taps,
         out,
@@ -551,18 +547,7 @@ def _signal_numpy(pos: FloatArray, config: SonarConfig, engine: IsmConfig) -> Fl
     if engine.fractional_delay == "table":
         if engine.spreading == "3d":
             return transmitted_at(pos / config.fs_hz, config)
-        table = _table(config, engine.spreading)
-        fine = config.period_samples * _TABLE_UPSAMPLE
-        u = np.mod(pos * _TABLE_UPSAMPLE, fine)
-        i = np.floor(u)
-        f = u - i
-        k = i.astype(np.int64) + 2
-        wm1 = -f * (f - 1.0) * (f - 2.0) / 6.0
-        w0 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-        w1 = -(f + 1.0) * f * (f - 2.0) / 2.0
-        w2 = (f + 1.0) * f * (f - 1.0) / 6.0
-        vals = wm1 * table[k - 1] + w0 * table[k] + w1 * table[k + 1] + w2 * table[k + 2]
-        return np.asarray(vals)
+        return periodic_table_at(_table(config, engine.spreading), pos * TABLE_UPSAMPLE)
     period = signal_period(config, engine.spreading)
     h = engine.sinc_half_taps
     i0 = np.floor(pos).astype(np.int64)
