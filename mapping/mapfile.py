@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mapping.atomicfile import atomic_savez, atomic_write_bytes
+from mapping.npzfile import read_npz
 from mapping.wallmap import WallMap
 
 FORMAT = "omnisonar-map-1"
@@ -90,19 +91,7 @@ def write_map(path: str | os.PathLike[str], wallmap: WallMap) -> Path:
 def read_map(path: str | os.PathLike[str]) -> WallMap:
     """Read and verify a map file; ``ValueError`` naming the file and the problem."""
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: npz[k] for k in npz.files}
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # zipfile / numpy errors on truncated or foreign files
-        raise ValueError(f"{path}: not a readable .npz map file ({exc})") from exc
-    fmt = str(data.get("format", ""))
-    if fmt != FORMAT:
-        raise ValueError(f"{path}: key 'format' must be {FORMAT!r}, got {fmt!r}")
-    missing = [k for k in (*_KEYS, "checksum") if k not in data]
-    if missing:
-        raise ValueError(f"{path}: missing key(s) {missing}")
+    data = read_npz(path, FORMAT, "map", (*_KEYS, "checksum"))
     if content_checksum(data) != str(data["checksum"]):
         raise ValueError(f"{path}: checksum mismatch: the file was altered or corrupted")
     try:

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mapping.atomicfile import atomic_savez
+from mapping.npzfile import read_npz
 from mapping.signal import SonarConfig
 
 FORMAT = "omnisonar-run-1"
@@ -130,20 +131,8 @@ def write_run(path: str | os.PathLike[str], run: Run) -> Path:
 def read_run(path: str | os.PathLike[str]) -> Run:
     """Read and validate a run file; ``ValueError`` with the file and key on any problem."""
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: npz[k] for k in npz.files}
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # zipfile/np errors on truncated or foreign files
-        raise ValueError(f"{path}: not a readable .npz run file ({exc})") from exc
-    fmt = str(data.get("format", ""))
-    if fmt != FORMAT:
-        raise ValueError(f"{path}: key 'format' must be {FORMAT!r}, got {fmt!r}")
-    missing = [k for k in ("sonar", "samples", "t_s", "speed_m_s", "yaw_rate_rad_s", "pose")
-               if k not in data]
-    if missing:
-        raise ValueError(f"{path}: missing key(s) {missing}")
+    data = read_npz(path, FORMAT, "run",
+                    ("sonar", "samples", "t_s", "speed_m_s", "yaw_rate_rad_s", "pose"))
     try:
         config = SonarConfig.from_json(str(data["sonar"]))
         meta = json.loads(str(data["meta"])) if "meta" in data else {}
