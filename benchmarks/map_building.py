@@ -38,6 +38,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._common import RESULTS, simulated_run  # noqa: E402
 from mapping.build import (  # noqa: E402
     BuildParams,
     RunSource,
@@ -51,32 +52,7 @@ from mapping.reconstruct import (  # noqa: E402
     observations_from_heatmaps,
     reconstruct_inverse,
 )
-from mapping.runfile import Run, read_run, write_run  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-CACHE = ROOT / "out" / "bench_runs"
-
-
-def simulated_run(path_name: str, repetitions: int = 10, snr_db: float | None = None) -> Run:
-    """The built-in path simulated with the image-source engine (cached on disk)."""
-    from mapping.path import builtin_path, builtin_path_scene
-    from mapping.scene import builtin_scene
-    from mapping.signal import SonarConfig
-    from mapping.simulate import simulate_run
-    from mapping.simulate.ism import IsmConfig
-
-    tag = f"{path_name}_M{repetitions}" + ("" if snr_db is None else f"_snr{snr_db:g}")
-    cached = CACHE / f"{tag}.npz"
-    if cached.exists():
-        return read_run(cached)
-    config = SonarConfig(repetitions=repetitions)
-    trajectory = builtin_path(path_name)
-    n_blocks = int(trajectory.duration_s / config.block_s)
-    run = simulate_run(builtin_scene(builtin_path_scene(path_name)), trajectory, config,
-                       n_blocks, IsmConfig(snr_db=snr_db), np.random.default_rng(1), seed=1)
-    write_run(cached, run)
-    return run
+from mapping.runfile import Run  # noqa: E402
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:

@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._common import CACHE, RESULTS, simulated_run  # noqa: E402
 from mapping.build import run_heatmaps  # noqa: E402
 from mapping.grid import GridExtent, GridParams, accumulate, cartesian_heatmap  # noqa: E402
 from mapping.quality import evaluate  # noqa: E402
@@ -40,38 +41,12 @@ from mapping.reconstruct import (  # noqa: E402
     prune_speckle,
     reconstruct_inverse,
 )
-from mapping.runfile import Run, read_run, write_run  # noqa: E402
+from mapping.runfile import Run  # noqa: E402
 from mapping.scene import Scene  # noqa: E402
 from mapping.wallmap import WallMap  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-CACHE = ROOT / "out" / "bench_runs"
 VIEW = (-1.0, 7.0, -1.0, 6.0)
 BASE = ["path A, M=10", "path B, M=10", "path B, M=4", "path B, M=6", "path B, M=8"]
-
-
-def simulated_run(path_name: str, repetitions: int = 10, snr_db: float | None = None) -> Run:
-    """The built-in path simulated with the image-source engine (cached on disk)."""
-    from mapping.path import builtin_path, builtin_path_scene
-    from mapping.scene import builtin_scene
-    from mapping.signal import SonarConfig
-    from mapping.simulate import simulate_run
-    from mapping.simulate.ism import IsmConfig
-
-    tag = f"{path_name}_M{repetitions}" + ("" if snr_db is None else f"_snr{snr_db:g}")
-    cached = CACHE / f"{tag}.npz"
-    if cached.exists():
-        return read_run(cached)
-    config = SonarConfig(repetitions=repetitions)
-    trajectory = builtin_path(path_name)
-    n_blocks = int(trajectory.duration_s / config.block_s)
-    t = time.perf_counter()
-    run = simulate_run(builtin_scene(builtin_path_scene(path_name)), trajectory, config,
-                       n_blocks, IsmConfig(snr_db=snr_db), np.random.default_rng(1), seed=1)
-    write_run(cached, run)
-    print(f"simulated {tag}: {n_blocks} blocks in {time.perf_counter() - t:.0f} s", flush=True)
-    return run
 
 
 def maps_for(run: Run) -> tuple[list[Any], WallMap, WallMap, WallMap, dict[str, float]]:
@@ -192,7 +167,7 @@ def main() -> None:
         if label not in BASE and not args.simulate_missing and not (CACHE / f"{tag}.npz").exists():
             print(f"skipping {label}: {tag} not simulated yet (use --simulate-missing)")
             continue
-        run = simulated_run(path_name, m, snr)
+        run = simulated_run(path_name, m, snr, verbose=True)
         assert run.scene is not None
         segments = Scene.from_json(run.scene).segments()
         hms, paper, inverse, pruned, times = maps_for(run)
