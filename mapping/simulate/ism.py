@@ -398,6 +398,16 @@ def path_gains(
     return np.where(keep, trace.reflection, 0.0)
 
 
+def traced_gains(
+    prepared: PreparedScene, positions_m: FloatArray, spreading: str
+) -> tuple[ImageSet, TraceResult, FloatArray]:
+    """Candidate images, their validity trace and gains (see :func:`path_gains`) at the
+    robot positions ``positions_m`` (n, 2)."""
+    images = stretch_images(prepared, positions_m)
+    trace = trace_images(images, prepared.segments, prepared.reflection, positions_m)
+    return images, trace, path_gains(trace, prepared, spreading)
+
+
 # ---- rendering ------------------------------------------------------------------------
 @dataclass(frozen=True)
 class StretchPlan:
@@ -435,10 +445,7 @@ def plan_stretch(
     g0 = int(math.floor(t0 / hv)) - 1
     g1 = int(math.floor(t1 / hv)) + 2
     tv = np.arange(g0, g1 + 1, dtype=np.float64) * hv
-    pos = trajectory.position(tv)
-    images = stretch_images(prepared, pos)
-    trace = trace_images(images, prepared.segments, prepared.reflection, pos)
-    gains = path_gains(trace, prepared, engine.spreading)
+    images, trace, gains = traced_gains(prepared, trajectory.position(tv), engine.spreading)
     active = np.flatnonzero(np.any(gains != 0.0, axis=1))
     k0 = int(math.floor(t0 / ht)) - 1
     k1 = int(math.floor(t1 / ht)) + 2
@@ -581,9 +588,8 @@ def render_reference(
         absn = start_sample + n
         t = absn / fs
         x = trajectory.position(np.array([t]))
-        images = stretch_images(prepared, x)
-        trace = trace_images(images, prepared.segments, prepared.reflection, x)
-        gains = path_gains(trace, prepared, engine.spreading)[:, 0]
+        images, _, gains_at = traced_gains(prepared, x, engine.spreading)
+        gains = gains_at[:, 0]
         acc = 0.0
         for i in np.flatnonzero(gains):
             tau = retarded_delay_scalar(images.A[i], images.b[i], trajectory, t, c)
