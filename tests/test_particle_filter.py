@@ -20,6 +20,7 @@ from localization.particle_filter import (
     FilterConfig,
     ParticleFilter,
     init_tracked,
+    pick_beta,
     predict,
     resample,
     weigh,
@@ -336,6 +337,24 @@ def test_config_validation() -> None:
     assert FilterConfig.from_json(FilterConfig(n_particles=7).to_json()).n_particles == 7
 
 
+def test_pick_beta_interpolates_the_nees_crossing() -> None:
+    """NEES proportional to beta (a Gaussian likelihood's information grows with beta):
+    the log-log interpolation returns the exact crossing of 3; a candidate with a lost run
+    is never picked; without a crossing the nearest in log ratio wins; bad input raises."""
+    betas = [25.0, 50.0, 100.0, 200.0, 400.0]
+    nees = [3.0 * b / 80.0 for b in betas]
+    assert pick_beta(betas, nees, [0] * 5) == pytest.approx(80.0)
+    assert pick_beta(betas, nees, [0, 0, 1, 0, 0]) == pytest.approx(80.0)  # 50..200 bracket
+    assert pick_beta(betas, nees, [0, 1, 1, 1, 1]) == 25.0
+    assert pick_beta(betas, [0.1, 0.2, 0.3, 0.5, 0.4], [0] * 5) == 200.0
+    with pytest.raises(ValueError, match="lost"):
+        pick_beta(betas, nees, [1] * 5)
+    with pytest.raises(ValueError, match="betas"):
+        pick_beta([0.0, 1.0], [1.0, 2.0], [0, 0])
+    with pytest.raises(ValueError, match="length"):
+        pick_beta(betas, nees[:3], [0] * 5)
+
+
 @pytest.fixture(scope="module")
 def simulated() -> tuple[object, object]:
     """Map G from an L-room mapping run and a held-out run (image sources, order 2)."""
@@ -405,3 +424,64 @@ def test_cli_localize_tracked(simulated: tuple[Any, Any], tmp_path: Any,
     assert rows.shape == (held.n_blocks, 13)
     assert main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
                  "--particles", "0"]) == 2
+
+
+@pytest.mark.slow
+def test_calibrate_beta_transfers_to_held_out_run(
+        simulated: tuple[Any, Any]) -> None:
+    """``calibrate_beta`` on the simulated held-out run of the fixture (L-room curve at
+    0.15 m/s, seed 1) picks beta by NEES; on a second held-out run it never saw (same curve
+    at 0.12 m/s, seed 3, its own noise), tracked from a 10 cm / 10 deg prior over 3 filter
+    seeds at 1000 particles, the mean NEES of the best mode is within a factor 2 of the
+    NEES the calibration measured at the chosen beta (the calibration transfers to a run it
+    did not see), never overconfident (<= 6), and tracking stays within 3 cm / 2 deg RMSE.
+
+    Known limit, measured (not a pass criterion): 3 (honest 3-dof covariance) is NOT
+    reached on the L-room by beta alone. With the default z_rand = 0.05 the held-out NEES is
+    ~0.6: the floor caps the likelihood ratio one block can cause at 20, about the ratio
+    between the core and the edge of the predicted cloud, so floored particles keep
+    5-35 % of the weight and the reported spread stays near the cloud's; a sharper beta
+    moves more particles onto the floor (NEES falls again at beta 400). A lower z_rand
+    (0.01) reaches NEES 1.5-1.9 here but loses the mirror mode race in global localization
+    (test_end_to_end_on_simulated_runs fails at z_rand 0.02)."""
+    from localization.estimate import track_metrics
+    from localization.particle_filter import CalibrationRun, calibrate_beta, run_filter
+    from mapping.heatmap import heatmap_of_run
+    from mapping.path import builtin_path
+    from mapping.scene import builtin_scene
+    from mapping.signal import SonarConfig
+    from mapping.simulate import IsmConfig, simulate_run
+
+    def calibration_run(run: Any) -> CalibrationRun:
+        return CalibrationRun(tuple(heatmap_of_run(run, k) for k in range(run.n_blocks)),
+                              run.speed_m_s, run.yaw_rate_rad_s, run.t_s, run.config.block_s,
+                              run.pose)
+
+    wall_map, held = simulated
+    tables = build_tables(wall_map, SensorConfig())
+    config = FilterConfig(n_particles=1000)
+    cal = calibrate_beta(tables, [calibration_run(held)], (50.0, 100.0, 200.0, 400.0), config,
+                         np.random.default_rng(0), n_seeds=2)
+    assert 50.0 <= cal.beta <= 400.0 and len(cal.nees_mean) == 4
+    other = simulate_run(builtin_scene("l-room"), builtin_path("l-room-curve", 0.12),
+                         SonarConfig(), 30,
+                         IsmConfig(order=2, snr_db=20.0, odometry_noise_m_s=0.005),
+                         np.random.default_rng(3), 3)
+    test_run = calibration_run(other)
+    tab = dataclasses.replace(tables, config=dataclasses.replace(tables.config, beta=cal.beta))
+    prior = np.diag([0.1**2, 0.1**2, math.radians(10.0) ** 2])
+    metrics = []
+    for seed in (10, 11, 12):
+        pf = ParticleFilter(tab, config, np.random.default_rng(seed), pose=other.pose[0],
+                            cov=prior)
+        ests = list(run_filter(pf, test_run.heat_maps, other.speed_m_s, other.yaw_rate_rad_s,
+                               other.t_s, other.config.block_s))
+        metrics.append(track_metrics(np.array([e.pose for e in ests]),
+                                     np.array([e.cov for e in ests]), other.pose))
+    assert all(m.blocks_to_converge == 0 for m in metrics)
+    held_out = float(np.mean([m.nees_mean for m in metrics]))
+    at_pick = float(np.interp(math.log(cal.beta), np.log(cal.betas), cal.nees_mean))
+    assert 0.5 * at_pick <= held_out <= 2.0 * at_pick
+    assert held_out <= 6.0
+    assert math.sqrt(np.mean([m.position_rmse_m**2 for m in metrics])) <= 0.03
+    assert math.degrees(math.sqrt(np.mean([m.heading_rmse_rad**2 for m in metrics]))) <= 2.0
