@@ -198,9 +198,16 @@ class Trajectory:
 
 
 def wrap_angle(theta_rad: ArrayLike) -> FloatArray:
-    """Wrap angles to (-pi, pi]."""
+    """Wrap angles to (-pi, pi] (ROS REP-103 yaw); exact for inputs already in range.
+
+    ``theta - 2 pi round(theta / 2 pi)`` leaves |theta| <= pi untouched (no ``+ pi - pi``
+    round-off) and the two boundary fixes keep -pi out of the result even when rounding
+    lands on it (the float just above pi used to come back as -pi).
+    """
     th = np.asarray(theta_rad, dtype=np.float64)
-    return np.pi - np.mod(np.pi - th, 2.0 * np.pi)
+    w = th - 2.0 * np.pi * np.round(th / (2.0 * np.pi))
+    w = np.where(w <= -np.pi, w + 2.0 * np.pi, w)
+    return np.asarray(np.where(w > np.pi, w - 2.0 * np.pi, w))
 
 
 def position_velocity_numpy(trajectory: Trajectory,

@@ -316,3 +316,23 @@ def test_trajectory_arrays_are_read_only() -> None:
     with pytest.raises(ValueError, match="share a shape"):
         Trajectory(s0_m=np.zeros(2), x0_m=np.zeros(1), y0_m=np.zeros(2), theta0_rad=np.zeros(2),
                    kappa_1_m=np.zeros(2), total_length_m=1.0, cruise_speed_m_s=0.1)
+
+
+def test_wrap_angle_boundaries_and_exactness() -> None:
+    """(-pi, pi]: pi stays pi, -pi becomes pi, the float just above pi never gives -pi,
+    and in-range angles come back bit for bit (regression: 0.1 -> 0.10000000000000009)."""
+    import math
+
+    from mapping.path import wrap_angle
+
+    above_pi = np.nextafter(np.pi, 4.0)
+    out = wrap_angle(np.array([np.pi, -np.pi, above_pi, 3 * np.pi, -3 * np.pi, 0.1, 1e-20]))
+    assert out[0] == np.pi and out[1] == np.pi and out[3] == np.pi and out[4] == np.pi
+    assert -np.pi < out[2] < -np.pi + 1e-12
+    assert out[5] == 0.1 and out[6] == 1e-20
+    rng = np.random.default_rng(3)
+    a = rng.uniform(-40.0, 40.0, 10_000)
+    w = wrap_angle(a)
+    assert np.all((w > -np.pi) & (w <= np.pi))
+    exact = np.array([math.remainder(v, 2 * math.pi) for v in a])
+    np.testing.assert_allclose(w, np.where(exact <= -np.pi, np.pi, exact), atol=1e-14)
