@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mapping.path import wrap_angle  # noqa: F401  (re-exported: one (-pi, pi] wrap for the project)
+
 FloatArray = NDArray[np.float64]
 
 
@@ -59,13 +61,6 @@ class MotionNoise:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"MotionNoise.{name} must be finite and >= 0, got {value}")
-
-
-def wrap_angle(a: FloatArray | float) -> FloatArray:
-    """Wrap angles to the interval (-pi, pi]."""
-    a = np.asarray(a, dtype=np.float64)
-    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w == -np.pi, np.pi, w)
 
 
 def odometry_increment(

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from localization.sensor import SensorTables, pose_log_likelihood, prepare_measurement
 from mapping.heatmap import HeatMap, heatmap_of_run
+from mapping.path import wrap_angle  # noqa: F401  (re-exported: one (-pi, pi] wrap for the project)
 from mapping.runfile import Run
 
 FloatArray = NDArray[np.float64]
@@ -33,12 +34,6 @@ TWO_PI = 2.0 * math.pi
 
 
 # ---- angles and poses -----------------------------------------------------------------
-def wrap_angle(a: FloatArray | float) -> FloatArray:
-    """Wrap angles to (-pi, pi]."""
-    w = np.mod(np.asarray(a, dtype=np.float64) + math.pi, TWO_PI) - math.pi
-    return np.where(w == -math.pi, math.pi, w)
-
-
 def circular_mean(a: FloatArray, weights: FloatArray | None = None) -> tuple[float, float]:
     """Circular mean of angles ``a`` and the mean resultant length R in [0, 1]."""
     w = np.ones_like(a) if weights is None else np.asarray(weights, dtype=np.float64)
