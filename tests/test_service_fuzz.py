@@ -1,10 +1,10 @@
 """Property test: no client input makes the service answer 5xx.
 
-Schemathesis (which the issue names) is not installed in the project's venv and the rules
-forbid adding packages, so this does the same job with hypothesis directly: every endpoint
-gets random paths, query parameters, headers, content types and bodies (wrong types,
-out-of-range and non-finite numbers, unknown fields, garbage and oversize bodies), and every
-answer must be < 500 with a JSON error body for 4xx. Bounded: ~40 examples per endpoint.
+Complements ``test_service_schemathesis.py`` (inputs generated from the OpenAPI schema) with
+what a schema cannot describe: every endpoint gets random paths, query parameters, headers,
+content types and bodies (wrong types, out-of-range and non-finite numbers, unknown fields,
+raw binary blocks, garbage and oversize bodies), and every answer must be < 500 with a JSON
+error body for 4xx. Bounded: ~40 examples per endpoint.
 """
 
 from __future__ import annotations
