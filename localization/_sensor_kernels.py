@@ -25,7 +25,8 @@ def _score_kernel(
     nx_pad: int,
     cos_tab: NDArray[np.float64],
     sin_tab: NDArray[np.float64],
-    r_cells: NDArray[np.float64],
+    r_entry: NDArray[np.float64],
+    j_entry: NDArray[np.int64],
     base: NDArray[np.int64],
     ux: NDArray[np.float64],
     uy: NDArray[np.float64],
@@ -33,7 +34,6 @@ def _score_kernel(
     cell: NDArray[np.int64],
     s1: NDArray[np.float64],
     s2: NDArray[np.float64],
-    idx: NDArray[np.int64],
     val: NDArray[np.float64],
     m_mean: float,
     m_norm: float,
@@ -46,12 +46,14 @@ def _score_kernel(
     cell with padded flat index ``base[i]``, with heading bin ``hb[i]``; polar sample
     ``s = k * n_angles + j`` is the cell nearest to that point plus
     ``r_k (cos_tab[hb, j], sin_tab[hb, j])`` (offsets rounded relative to the cell, so a
-    cell centre reproduces the heading-0 table exactly). Only the ``idx`` entries (values
-    ``val``) of the measurement are non-zero, so the cross term is a sparse dot product; the
+    cell centre reproduces the heading-0 table exactly). Only the measurement's non-zero
+    entries (values ``val``) enter, so the cross term is a sparse dot product; entry ``t``
+    is polar sample ``(k, j)``, given as its range in cells ``r_entry[t] = r_cells[k]`` and
+    its angle index ``j_entry[t] = j`` (split once per measurement by :func:`score`: an
+    integer division per entry and particle cost more than half of the kernel's time). The
     sample sum and sum of squares come from the per-cell tables ``s1`` and ``s2``.
     ``cell[i] < 0`` marks a particle off the map (``out = nan``).
     """
-    n_angles = cos_tab.shape[1]
     for i in range(base.shape[0]):
         c = cell[i]
         if c < 0:
@@ -61,13 +63,14 @@ def _score_kernel(
         b = base[i]
         x = ux[i] + 0.5
         y = uy[i] + 0.5
+        cos_h = cos_tab[h]
+        sin_h = sin_tab[h]
         dot = 0.0
-        for t in range(idx.shape[0]):
-            s = idx[t]
-            k = s // n_angles
-            j = s - k * n_angles
-            dx = int(math.floor(r_cells[k] * cos_tab[h, j] + x))
-            dy = int(math.floor(r_cells[k] * sin_tab[h, j] + y))
+        for t in range(val.shape[0]):
+            j = j_entry[t]
+            r = r_entry[t]
+            dx = int(math.floor(r * cos_h[j] + x))
+            dy = int(math.floor(r * sin_h[j] + y))
             dot += val[t] * g[b + dy * nx_pad + dx]
         var = s2[c] - s1[c] * s1[c] / n_samp
         out[i] = (dot - m_mean * s1[c]) / (m_norm * math.sqrt(var)) if var > 1e-18 else 0.0
@@ -105,10 +108,14 @@ def score(
     idx: NDArray[np.int64], val: NDArray[np.float64], m_mean: float, m_norm: float,
     n_samp: int,
 ) -> NDArray[np.float64]:
-    """Allocate the output and run :func:`_score_kernel`."""
+    """Split the entries ``idx`` into range and angle once, allocate the output and run
+    :func:`_score_kernel` (same arguments as :func:`_score_numpy`)."""
+    n_angles = cos_tab.shape[1]
+    r_entry = np.ascontiguousarray(r_cells[idx // n_angles], dtype=np.float64)
+    j_entry = np.ascontiguousarray(idx % n_angles, dtype=np.int64)
     out = np.empty(base.shape[0], dtype=np.float64)
-    _score_kernel(g, nx_pad, cos_tab, sin_tab, r_cells, base, ux, uy, hb, cell, s1, s2, idx,
-                  val, m_mean, m_norm, n_samp, out)
+    _score_kernel(g, nx_pad, cos_tab, sin_tab, r_entry, j_entry, base, ux, uy, hb, cell, s1,
+                  s2, np.ascontiguousarray(val, dtype=np.float64), m_mean, m_norm, n_samp, out)
     return out
 
 
