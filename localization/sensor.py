@@ -466,7 +466,10 @@ def _bin_ranges(H: FloatArray, ranges_m: FloatArray, config: SensorConfig) -> Fl
     edges = np.append(config.ranges_m - 0.5 * config.range_step_m,
                       config.ranges_m[-1] + 0.5 * config.range_step_m)
     idx = np.searchsorted(ranges_m, edges)
-    csum = np.concatenate([np.zeros((H.shape[0], 1)), np.cumsum(H, axis=1)], axis=1)
+    # prefix sums only up to the last bin edge (the sensor's max range is a fraction of
+    # the heat map's columns); the sums are sequential, so the values are the same
+    hi = int(idx[-1])
+    csum = np.concatenate([np.zeros((H.shape[0], 1)), np.cumsum(H[:, :hi], axis=1)], axis=1)
     counts = np.diff(idx)
     sums = csum[:, idx[1:]] - csum[:, idx[:-1]]
     return np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
