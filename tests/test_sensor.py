@@ -25,6 +25,7 @@ from localization.sensor import (
     uses_direction,
     validate_block,
 )
+from localization.sensor import _bin_ranges as bin_ranges
 from mapping.heatmap import HeatMap
 from tests._localization_helpers import ASYMMETRIC_ROOM, rasterize, synthetic_heatmap
 
@@ -197,3 +198,20 @@ def test_config_validation() -> None:
         SensorConfig(z_rand=0.0)
     with pytest.raises(ValueError, match="model"):
         SensorConfig(model="bearing")  # type: ignore[arg-type]
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 10_000))
+def test_range_binning_is_the_mean_of_each_bin(seed: int) -> None:
+    """Binned columns equal a direct per-bin mean (independent loop), including heat maps
+    whose columns reach well past the sensor's max range (prefix sums stop at the last bin)."""
+    rng = np.random.default_rng(seed)
+    cfg = SensorConfig(max_range_m=float(rng.uniform(1.0, 3.0)))
+    ranges_m = np.sort(rng.uniform(0.0, 6.0, int(rng.integers(50, 400))))
+    H = rng.random((5, ranges_m.size))
+    got = bin_ranges(H, ranges_m, cfg)
+    half = 0.5 * cfg.range_step_m
+    for k, r in enumerate(cfg.ranges_m):
+        sel = (ranges_m >= r - half) & (ranges_m < r + half)
+        want = H[:, sel].mean(axis=1) if sel.any() else np.zeros(5)
+        np.testing.assert_allclose(got[:, k], want, rtol=1e-9, atol=1e-12)
