@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.motion import predict_mean, wrap_angle
+from localization.sensor import SensorConfig, SensorTables, build_tables
 from mapping.heatmap import HeatMap
 from mapping.wallmap import WallMap
 
@@ -93,3 +94,24 @@ def trajectory(start: FloatArray, odometry: list[tuple[float, float]], dt_s: flo
     for v, w in odometry:
         poses.append(predict_mean(poses[-1], v, w, dt_s))
     return np.array(poses)
+
+
+def asymmetric_tables() -> SensorTables:
+    """Sensor tables of the rasterized ASYMMETRIC_ROOM (the filters' shared test map)."""
+    return build_tables(rasterize(ASYMMETRIC_ROOM), SensorConfig(max_range_m=4.5))
+
+
+def synthetic_track(segments: FloatArray, start: FloatArray,
+                    odometry: list[tuple[float, float]], dt_s: float, seed: int,
+                    noise: float = 0.2) -> tuple[FloatArray, list[HeatMap]]:
+    """True poses dead-reckoned from ``start`` and a noisy synthetic heat map at each."""
+    truth = trajectory(start, odometry, dt_s)
+    rng = np.random.default_rng(seed)
+    return truth, [synthetic_heatmap(segments, p, noise, rng) for p in truth]
+
+
+def odometry_step(odometry: list[tuple[float, float]], dt_s: float, k: int
+                  ) -> tuple[float, float, float]:
+    """(speed, yaw rate, dt) that led to pose ``k`` of a :func:`trajectory` (k = 0: at rest
+    on the first leg's speed, no time elapsed)."""
+    return (*odometry[k - 1], dt_s) if k > 0 else (odometry[0][0], 0.0, 0.0)

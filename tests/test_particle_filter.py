@@ -36,8 +36,11 @@ from mapping.heatmap import HeatMap
 from tests._localization_helpers import (
     ASYMMETRIC_ROOM,
     CORRIDOR,
+    asymmetric_tables,
+    odometry_step,
     rasterize,
     synthetic_heatmap,
+    synthetic_track,
     trajectory,
 )
 
@@ -56,18 +59,16 @@ MIRROR_ROOM = np.array([
 
 @pytest.fixture(scope="module")
 def tables() -> SensorTables:
-    return build_tables(rasterize(ASYMMETRIC_ROOM), SensorConfig(max_range_m=4.5))
+    return asymmetric_tables()
 
 
 @pytest.fixture(scope="module")
 def run() -> tuple[np.ndarray, list[HeatMap]]:
-    truth = trajectory(START, ODO, DT)
-    rng = np.random.default_rng(11)
-    return truth, [synthetic_heatmap(ASYMMETRIC_ROOM, p, 0.2, rng) for p in truth]
+    return synthetic_track(ASYMMETRIC_ROOM, START, ODO, DT, seed=11)
 
 
 def _odometry(k: int) -> tuple[float, float, float]:
-    return (*ODO[k - 1], DT) if k > 0 else (0.2, 0.0, 0.0)
+    return odometry_step(ODO, DT, k)
 
 
 def _state_bytes(pf: ParticleFilter) -> dict[str, bytes]:
