@@ -57,17 +57,21 @@ def _gabor(n: int, f0_hz: float, bw_hz: float, t0_s: float) -> np.ndarray:
 
 
 # ---- kernel against its numpy twin ----------------------------------------------------------
-@pytest.mark.parametrize(("dtype", "rtol"), [("float64", 1e-10), ("float32", 2e-4)])
-def test_numba_kernel_equals_numpy_twin(dtype: str, rtol: float) -> None:
+def _random_solvers(dtype: str, nx: int = 61, ny: int = 47,
+                    **variants: dict[str, object]) -> dict[str, FdtdSolver]:
+    """Solvers with the same random fields on a grid with an 8-cell PML, rigid and
+    impedance walls; ``variants`` maps a name to FdtdSolver keyword arguments."""
     cfg = FdtdConfig(pml_cells=8, dtype=dtype)
-    grid = _grid(61, 47, 8)
+    grid = _grid(nx, ny, 8)
     seg = np.array([[[0.10, 0.06], [0.13, 0.20]], [[0.06, 0.11], [0.26, 0.12]],
                     [[0.2, 0.05], [0.2, 0.09]]])
     walls = wall_nodes(seg, np.array([np.inf, 800.0, 300.0]), grid, cfg, C)
     assert walls.wx.any() and walls.wy.any() and (walls.beta > 0).any()
     rng = np.random.default_rng(1)
-    solvers = {b: FdtdSolver(grid, cfg, C, walls, 2, b) for b in ("numba", "numpy")}
-    init = {name: rng.standard_normal(getattr(solvers["numba"], name).shape)
+    solvers = {name: FdtdSolver(grid, cfg, C, walls, 2, **kw)  # type: ignore[arg-type]
+               for name, kw in variants.items()}
+    first = next(iter(solvers.values()))
+    init = {name: rng.standard_normal(getattr(first, name).shape)
             for name in ("p", "qx", "qy", "psx")}
     for name in ("qx", "qy"):
         init[name] /= RHO * C
@@ -76,18 +80,113 @@ def test_numba_kernel_equals_numpy_twin(dtype: str, rtol: float) -> None:
             getattr(s, name)[...] = a + (s.offset if name == "p" else 0)
         s.qx[:, [0, -1]] = 0
         s.qy[:, :, [0, -1]] = 0
+    return solvers
+
+
+def _moving_stencils(grid: FdtdGrid, n: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """Source moving across the rows (through chunk boundaries and the PML), receiver moving
+    the other way, random source signal."""
+    x0, x1 = grid.origin_m[0] + 1.3 * DX, grid.origin_m[0] + (grid.shape[0] - 2.4) * DX
+    src = np.linspace([x0, 0.142], [x1, 0.131], n)
+    rx = np.linspace([x1, 0.1], [x0, 0.16], n)
+    si, sj, sw = bilinear_stencil(src, grid)
+    ri, rj, rw = bilinear_stencil(rx, grid)
+    return si, sj, sw, rng.standard_normal(n), ri, rj, rw
+
+
+def _assert_close(a: FdtdSolver, b: FdtdSolver, out_a: np.ndarray, out_b: np.ndarray,
+                  rtol: float) -> None:
+    for name in ("p", "qx", "qy", "psx"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.abs(x - y).max() <= rtol * np.abs(y).max(), name
+    assert np.abs(out_a - out_b).max() <= rtol * np.abs(out_b).max() * 10
+
+
+@pytest.mark.parametrize(("dtype", "rtol"), [("float64", 1e-10), ("float32", 2e-4)])
+def test_numba_kernel_equals_numpy_twin(dtype: str, rtol: float) -> None:
+    solvers = _random_solvers(dtype, numba={}, numpy=dict(backend="numpy"))
     n = 200
+    grid = solvers["numba"].grid
+    rng = np.random.default_rng(2)
     src = np.array([0.151, 0.142])
     rx = np.linspace([0.12, 0.1], [0.17, 0.16], n)
     g = rng.standard_normal(n)
     si, sj, sw = bilinear_stencil(np.repeat(src[None], n, 0), grid)
     ri, rj, rw = bilinear_stencil(rx, grid)
     out = {b: s.run(si, sj, sw, g, ri, rj, rw) for b, s in solvers.items()}
+    _assert_close(solvers["numba"], solvers["numpy"], out["numba"], out["numpy"], rtol)
+
+
+# every code path of the temporally blocked kernel: one chunk (pure skewed wavefront),
+# several chunks (trapezoids + boundary triangles), chunks exactly 2 * steps wide, more
+# chunks than threads, step counts that are not a multiple of the sweep depth or smaller
+# than it, one and two threads
+_SWEEP_CASES = [
+    # (steps_per_sweep, n_chunks, threads, n_steps)
+    (1, 1, 1, 200), (16, 1, 1, 200), (7, 1, 1, 3), (5, 2, 2, 201), (15, 2, 2, 200),
+    (8, 3, 2, 37), (3, 4, 2, 200), (7, 4, 1, 199), (6, 5, 2, 13),
+]
+
+
+@pytest.mark.parametrize(("depth", "chunks", "threads", "n_steps"), _SWEEP_CASES)
+def test_blocked_sweeps_equal_numpy_twin(depth: int, chunks: int, threads: int, n_steps: int,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """The temporally blocked kernel (several steps per sweep, chunk boundaries fixed up
+    afterwards) against the one-step-at-a-time numpy twin, with PML, rigid and impedance
+    walls, a source and a receiver moving across the chunk boundaries; float64 to 1e-10.
+    Also bit for bit equal to the one-step numba kernel (same arithmetic, other order)."""
+    import numba
+
+    from mapping.simulate import fdtd_solver
+
+    monkeypatch.setattr(fdtd_solver, "_SMALL_GRID_CELLS", 0)  # keep the threads on
+    solvers = _random_solvers("float64", numba=dict(steps_per_sweep=depth, n_chunks=chunks),
+                              step=dict(backend="numba-step"), numpy=dict(backend="numpy"))
+    grid = solvers["numba"].grid
+    assert fdtd_solver.sweep_plan(grid.shape[0], depth, chunks) == (chunks, depth)
+    args = _moving_stencils(grid, n_steps, np.random.default_rng(3))
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        out = {b: s.run(*args) for b, s in solvers.items()}
+    finally:
+        numba.set_num_threads(before)
+    _assert_close(solvers["numba"], solvers["numpy"], out["numba"], out["numpy"], 1e-10)
     for name in ("p", "qx", "qy", "psx"):
-        a, b = getattr(solvers["numba"], name), getattr(solvers["numpy"], name)
-        scale = np.abs(b).max()
-        assert np.abs(a - b).max() <= rtol * scale, name
-    assert np.abs(out["numba"] - out["numpy"]).max() <= rtol * np.abs(out["numpy"]).max() * 10
+        assert np.array_equal(getattr(solvers["numba"], name), getattr(solvers["step"], name))
+    assert np.array_equal(out["numba"], out["step"])
+    assert np.abs(out["numpy"]).max() > 0
+
+
+def test_blocked_sweeps_float32_equal_numpy_twin() -> None:
+    """Default settings (16 steps per sweep), float32, moving source and receiver, an odd
+    step count: within float32 tolerance of the twin."""
+    solvers = _random_solvers("float32", numba={}, numpy=dict(backend="numpy"))
+    args = _moving_stencils(solvers["numba"].grid, 203, np.random.default_rng(4))
+    out = {b: s.run(*args) for b, s in solvers.items()}
+    _assert_close(solvers["numba"], solvers["numpy"], out["numba"], out["numpy"], 2e-4)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(4, 300), st.integers(1, 40), st.integers(1, 16))
+def test_sweep_plan_keeps_chunks_wide_enough(nx: int, depth: int, chunks: int) -> None:
+    from mapping.simulate.fdtd_solver import sweep_plan
+
+    c, d = sweep_plan(nx, depth, chunks)
+    assert 1 <= c <= chunks and 1 <= d <= depth
+    if c > 1:
+        widths = np.diff((np.arange(c + 1) * nx) // c)
+        assert widths.min() >= 2 * d
+
+
+def test_solver_refuses_bad_sweep_settings() -> None:
+    grid = _grid(20, 20, 0)
+    with pytest.raises(ValueError, match="steps_per_sweep"):
+        FdtdSolver(grid, FdtdConfig(pml_cells=0), C, steps_per_sweep=0)
+    with pytest.raises(ValueError, match="n_chunks"):
+        FdtdSolver(grid, FdtdConfig(pml_cells=0), C, n_chunks=0)
+    with pytest.raises(ValueError, match="backend"):
+        FdtdSolver(grid, FdtdConfig(pml_cells=0), C, backend="cuda")
 
 
 # ---- stability and energy -----------------------------------------------------------------

@@ -22,6 +22,12 @@ pressure is updated in a short serial second pass (one thread barrier per step).
 arithmetic per element is the same as the plain numpy twin at the end of this module
 (tested).
 
+:func:`_run_sweeps` (the solver's default) does the same row updates with temporal
+blocking: several steps per sweep over the rows along a skewed wavefront (step ``k`` of row
+``t - k`` at time ``t``), so each row comes from memory once per sweep instead of once per
+step; chunk boundaries are fixed up in a second parallel pass (see its docstring). Same
+arithmetic, so the fields equal :func:`_run_steps`'s bit for bit (tested).
+
 Speed: every row is split into branch-free inner loops (PML segments with per-column
 coefficients and a select-style flush, interior segments with a scalar coefficient) over
 contiguous row slices indexed from 0, so LLVM vectorizes them: a shifted index such as
@@ -217,6 +223,97 @@ def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
                     _pressure_row(p, qx, qy, psx, f, s, apx, bpx, apy, bpy, kp, npml, f == 0,
                                   imp_ptr, imp_col, imp_beta, imp_buf, offset, flush, zero)
         _inject_and_receive(p, n, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out, offset)
+
+
+# ---- temporal blocking: several steps per sweep over the rows --------------------------------
+@njit(**NUMBA_FLAGS)
+def _velocity_rows(p, qx, qy, i, aqx, bqx, aqy, bqy, npml, wx_ptr, wx_col, wy_ptr, wy_col,
+                   flush, zero):  # pragma: no cover - numba
+    """V(i): ``qx`` node ``i + 1`` and the ``qy`` nodes of row ``i`` of every field."""
+    for f in range(p.shape[0]):
+        _velocity_row(p, qx, qy, f, i, aqx, bqx, aqy, bqy, npml, f == 0,
+                      wx_ptr, wx_col, wy_ptr, wy_col, flush, zero)
+
+
+@njit(**NUMBA_FLAGS)
+def _pressure_rows(p, qx, qy, psx, i, n, apx, bpx, apy, bpy, kp, npml, imp_ptr, imp_col,
+                   imp_beta, imp_buf, offset, flush, zero, src_i, src_j, src_w, src_g,
+                   rx_i, rx_j, rx_w, outk):  # pragma: no cover - numba
+    """P(i) of step ``n`` for every field, then the part of step ``n``'s source that falls
+    on row ``i`` and the receiver terms of row ``i`` (``outk[n, f, k]``, one slot per
+    stencil node, so rows finished by different threads never share an output element)."""
+    for f in range(p.shape[0]):
+        _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml, f == 0,
+                      imp_ptr, imp_col, imp_beta, imp_buf, offset, flush, zero)
+        for k in range(4):
+            if src_i[n, k] == i:
+                p[f, i, src_j[n, k]] += src_w[n, k] * src_g[n]
+        for k in range(4):
+            if rx_i[n, k] == i:
+                outk[n, f, k] = rx_w[n, k] * (p[f, i, rx_j[n, k]] - offset)
+
+
+@njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _run_sweeps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
+                wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf,
+                offset, flush, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w,
+                outk, n_chunks, depth):  # pragma: no cover - numba
+    """Advance ``src_g.size`` steps, ``depth`` steps per sweep over the rows (temporal
+    blocking); same arithmetic per element as :func:`_run_steps`, so the same result bit
+    for bit, in a different order.
+
+    Step ``n`` of row ``i`` is V(n, i) (velocity nodes ``qx[i + 1]``, ``qy[i]``) then
+    P(n, i) (pressure ``p[i]``, then step ``n``'s source and receiver terms on row ``i``).
+    V(n, i) needs P(n - 1, i) and P(n - 1, i + 1); P(n, i) needs V(n, i - 1) and V(n, i);
+    those are also the only readers of what each overwrites. A sweep of ``K`` steps walks
+    a skewed wavefront: at time ``t`` it does step ``k`` of row ``t - k`` for k = 0..K-1,
+    so a row is read from memory once per sweep and its K updates happen while it and its
+    neighbours are still in the core's cache.
+
+    Rows are split into ``n_chunks`` contiguous chunks (one ``prange`` iteration each, at
+    least ``2 depth`` rows wide). Phase 1, in parallel: each chunk does the trapezoid of
+    work that needs no other chunk (step k: V on rows [s + k, e - k), P on [s + k + 1, e -
+    k); the outer edges of the first and last chunk are not shrunk). Phase 2, in parallel:
+    the inverted triangle left at each inner boundary b (step k: V on [b - k, b + k), P on
+    [b - k, b + k + 1)), step by step. Receiver terms go to ``outk`` (n, n_fields, 4);
+    the caller sums them over the last axis in node order.
+    """
+    nx = p.shape[1]
+    zero = flush - flush  # in the field dtype (a Python 0.0 would promote to float64)
+    n_total = src_g.shape[0]
+    n0 = 0
+    while n0 < n_total:
+        kk = min(depth, n_total - n0)
+        for c in prange(n_chunks):
+            s = (c * nx) // n_chunks
+            e = ((c + 1) * nx) // n_chunks
+            shrink_lo = 0 if c == 0 else 1
+            shrink_hi = 0 if c == n_chunks - 1 else 1
+            for t in range(s, e + kk - 1):
+                for k in range(kk):
+                    i = t - k
+                    v_hi = e - shrink_hi * k
+                    if i < s + shrink_lo * k or i >= v_hi:
+                        continue
+                    _velocity_rows(p, qx, qy, i, aqx, bqx, aqy, bqy, npml, wx_ptr, wx_col,
+                                   wy_ptr, wy_col, flush, zero)
+                    if i >= s + shrink_lo * (k + 1):
+                        _pressure_rows(p, qx, qy, psx, i, n0 + k, apx, bpx, apy, bpy, kp,
+                                       npml, imp_ptr, imp_col, imp_beta, imp_buf, offset,
+                                       flush, zero, src_i, src_j, src_w, src_g, rx_i, rx_j,
+                                       rx_w, outk)
+        for c in prange(1, n_chunks):
+            b = (c * nx) // n_chunks
+            for k in range(kk):
+                for i in range(b - k, b + k):
+                    _velocity_rows(p, qx, qy, i, aqx, bqx, aqy, bqy, npml, wx_ptr, wx_col,
+                                   wy_ptr, wy_col, flush, zero)
+                for i in range(b - k, b + k + 1):
+                    _pressure_rows(p, qx, qy, psx, i, n0 + k, apx, bpx, apy, bpy, kp,
+                                   npml, imp_ptr, imp_col, imp_beta, imp_buf, offset,
+                                   flush, zero, src_i, src_j, src_w, src_g, rx_i, rx_j,
+                                   rx_w, outk)
+        n0 += kk
 
 
 # ---- the plain numpy twin (tests and benchmark baseline) -----------------------------------
