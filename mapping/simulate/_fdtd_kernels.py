@@ -34,7 +34,9 @@ contiguous row slices indexed from 0, so LLVM vectorizes them: a shifted index s
 ``pr[j - 1]`` would keep numba's negative-index wrap-around check in the loop, and a Python
 ``0.0`` assigned to a float32 value would promote the loop to float64 (``zero`` is passed
 in the field dtype instead). This took the kernel from ~0.4 to ~1.2 G field-cell updates/s
-on one thread (float32, 500^2, ``benchmarks/fdtd.py``).
+on one thread (float32, 500^2, ``benchmarks/fdtd.py``). The row helpers are inlined at the
+numba IR level (``inline="always"``): the calls with their dozens of array arguments cost
+~25 % of the time per row otherwise (measured, paper domain, one thread: 1.22 -> 1.60 G).
 """
 
 from __future__ import annotations
@@ -45,20 +47,20 @@ from numba import njit, prange
 from mapping._numba_config import NUMBA_FLAGS, PARALLEL
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _qx_plain(row, p0, p1, b):  # pragma: no cover - numba
     for j in range(row.shape[0]):
         row[j] = row[j] - b * (p1[j] - p0[j])
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _qx_damped(row, p0, p1, a, b, flush, zero):  # pragma: no cover - numba
     for j in range(row.shape[0]):
         v = a * row[j] - b * (p1[j] - p0[j])
         row[j] = zero if abs(v) < flush else v
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _qy_plain(row, pr, b, j0, j1):  # pragma: no cover - numba
     # row[j] for j in [j0, j1), j0 >= 1: written with offsets from 0 so that no index can be
     # negative (numba's wrap-around check would otherwise block vectorization)
@@ -69,7 +71,7 @@ def _qy_plain(row, pr, b, j0, j1):  # pragma: no cover - numba
         r[k] = r[k] - b * (hi[k] - lo[k])
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _qy_damped(row, pr, aqy, bqy, j0, j1, flush, zero):  # pragma: no cover - numba
     r = row[j0:j1]
     hi = pr[j0:j1]
@@ -81,7 +83,7 @@ def _qy_damped(row, pr, aqy, bqy, j0, j1, flush, zero):  # pragma: no cover - nu
         r[k] = zero if abs(v) < flush else v
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _velocity_row(p, qx, qy, f, i, aqx, bqx, aqy, bqy, npml, walled,
                   wx_ptr, wx_col, wy_ptr, wy_col, flush, zero):  # pragma: no cover - numba
     nx = p.shape[1]
@@ -112,7 +114,7 @@ def _velocity_row(p, qx, qy, f, i, aqx, bqx, aqy, bqy, npml, walled,
             row[wy_col[k]] = zero
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _p_split(pr, sx, qx0, qx1, qyr, j0, j1, ax, bx, apy, bpy, offset, flush,
              zero):  # pragma: no cover - numba
     """Split-field PML update of pressure cells [j0, j1) of one row."""
@@ -134,7 +136,7 @@ def _p_split(pr, sx, qx0, qx1, qyr, j0, j1, ax, bx, apy, bpy, offset, flush,
         r[k] = offset + px + py
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _p_plain(pr, qx0, qx1, qyr, j0, j1, kp):  # pragma: no cover - numba
     r = pr[j0:j1]
     x0 = qx0[j0:j1]
@@ -145,7 +147,7 @@ def _p_plain(pr, qx0, qx1, qyr, j0, j1, kp):  # pragma: no cover - numba
         r[k] = r[k] - kp * ((x1[k] - x0[k]) + (y1[k] - y0[k]))
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml, walled,
                   imp_ptr, imp_col, imp_beta, imp_buf, offset, flush,
                   zero):  # pragma: no cover - numba
@@ -179,7 +181,7 @@ def _pressure_row(p, qx, qy, psx, f, i, apx, bpx, apy, bpy, kp, npml, walled,
             pr[c] = offset + ((pr[c] - offset) - beta * (imp_buf[k] - offset)) / (1.0 + beta)
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _inject_and_receive(p, n, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out,
                         offset):  # pragma: no cover - numba
     nf = p.shape[0]
@@ -226,7 +228,7 @@ def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
 
 
 # ---- temporal blocking: several steps per sweep over the rows --------------------------------
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _velocity_rows(p, qx, qy, i, aqx, bqx, aqy, bqy, npml, wx_ptr, wx_col, wy_ptr, wy_col,
                    flush, zero):  # pragma: no cover - numba
     """V(i): ``qx`` node ``i + 1`` and the ``qy`` nodes of row ``i`` of every field."""
@@ -235,7 +237,7 @@ def _velocity_rows(p, qx, qy, i, aqx, bqx, aqy, bqy, npml, wx_ptr, wx_col, wy_pt
                       wx_ptr, wx_col, wy_ptr, wy_col, flush, zero)
 
 
-@njit(**NUMBA_FLAGS)
+@njit(inline="always", **NUMBA_FLAGS)
 def _pressure_rows(p, qx, qy, psx, i, n, apx, bpx, apy, bpy, kp, npml, imp_ptr, imp_col,
                    imp_beta, imp_buf, offset, flush, zero, src_i, src_j, src_w, src_g,
                    rx_i, rx_j, rx_w, outk):  # pragma: no cover - numba
