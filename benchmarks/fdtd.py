@@ -1,12 +1,22 @@
-"""Benchmark of the FDTD engine (issue 4): cell updates per second of the fused numba kernel
-and its numpy twin, float32/float64, 1 and 2 threads, on 500^2 and 1000^2 grids with a
-24-cell PML; the memory-bandwidth ceiling (copy and triad over grid-sized arrays) measured
-in the same process; the denormal guard on/off; seconds per simulated 1.023 s block of the
-paper scene (extrapolated from a short run).
+"""Benchmark of the FDTD engine (issue 4): cell updates per second of the numba kernels
+(the temporally blocked default, ``FdtdSolver(backend="numba")``, and the previous
+one-step-per-sweep kernel, ``backend="numba-step"``) and the numpy twin, float32/float64, 1
+and 2 threads, on 500^2 and 1000^2 grids with a 24-cell PML; the memory-bandwidth ceiling
+(copy and triad over grid-sized arrays) measured in the same process; the denormal guard
+on/off; on the fitted paper-scene domain (walls + free field, PML) the two numba kernels
+interleaved, >= 5 repeats each, median and spread, with the load average before and after,
+and the seconds per simulated 1.023 s block (extrapolated from the per-step time).
 
 A "cell update" is p, qx and qy of one cell of one field for one step. The engine advances
 two fields (with and without walls), so one grid step is two cell updates; both counts are
-reported. Writes benchmarks/results/fdtd.json and fdtd.png. Runs in about two minutes.
+reported. Bytes model: one step moves p, qx, qy in and out once (24 B per float32 field-cell
+update); the blocked kernel streams them from memory once per sweep of ``steps_per_sweep``
+steps (24 / steps_per_sweep B per update at the memory level, the rest from the core's L2).
+
+Writes benchmarks/results/fdtd.json and fdtd.png (and engines.png, fdtd_vs_ism.png). Runs in
+about three minutes; waits (up to 10 min) for a 1-minute load average below 0.7 before the
+paper-domain measurement, which runs first. ``--only paper`` reruns just that measurement
+and updates its key in an existing fdtd.json.
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ from mapping.simulate.fdtd import (  # noqa: E402
     new_state,
     setup_for_scene,
 )
+from mapping.simulate.fdtd_solver import STEPS_PER_SWEEP  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results"
 C = 340.0
@@ -110,6 +121,21 @@ def kernel_rate(n: int, dtype: str, backend: str, threads: int, n_fields: int,
     return n * n * steps / t
 
 
+def _wait_quiet(max_load: float, timeout_s: float) -> dict[str, Any]:
+    """Wait until the 1-minute load average is below ``max_load`` (or the timeout)."""
+    t0 = time.perf_counter()
+    while os.getloadavg()[0] >= max_load and time.perf_counter() - t0 < timeout_s:
+        time.sleep(10)
+    return {"waited_s": time.perf_counter() - t0, "max_load": max_load,
+            "quiet": os.getloadavg()[0] < max_load}
+
+
+def _spin(fn: Any, seconds: float) -> None:
+    t_end = time.perf_counter() + seconds
+    while time.perf_counter() < t_end:
+        fn()
+
+
 def denormal_effect(n: int, steps: int) -> dict[str, float]:
     """Rate with and without the denormal guard after a pulse has spread (float32, 1 thread)."""
     numba.set_num_threads(1)
@@ -135,26 +161,63 @@ def denormal_effect(n: int, steps: int) -> dict[str, float]:
     return out
 
 
-def paper_block_seconds(threads: int, steps: int) -> dict[str, Any]:
-    """Seconds per simulated 1.023 s block of the paper scene on the Table 2 grid."""
+def paper_block(threads: int, steps: int = 4 * STEPS_PER_SWEEP,
+                repeats: int = 7) -> dict[str, Any]:
+    """The fitted paper-scene domain (scene ``paper``, path ``paper-a``, Table 2 grid, two
+    fields, walls, 24-cell PML): the blocked kernel and the one-step kernel interleaved,
+    ``repeats`` timings of ``steps`` steps each (moving sonar, real source signal); medians,
+    spread, ratio, seconds per simulated 1.023 s block."""
     numba.set_num_threads(threads)
     sonar = SonarConfig()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         setup = setup_for_scene(builtin_scene("paper"), builtin_path("paper-a"), sonar,
                                 FdtdConfig(), n_blocks=1)
-    state = new_state(setup)
     from mapping.simulate.fdtd import advance
 
-    advance(setup, state, 2)
-    per_step = _best(lambda: advance(setup, state, steps), 5) / steps  # median of 5
-    steps_per_block = sonar.block_s / setup.fdtd.time_step_s
+    states = {b: new_state(setup, b) for b in ("numba", "numba-step")}
+    for st in states.values():
+        advance(setup, st, STEPS_PER_SWEEP)  # compile
+    # the second CPU of this VM needs a moment at full speed after a thread-count switch
+    def both() -> None:
+        for st in states.values():
+            advance(setup, st, STEPS_PER_SWEEP)
+
+    _spin(both, 1.0)
+    load_before = os.getloadavg()
+    times: dict[str, list[float]] = {b: [] for b in states}
+    for _ in range(repeats):
+        for b, st in states.items():
+            t = time.perf_counter()
+            advance(setup, st, steps)
+            times[b].append(time.perf_counter() - t)
+    load_after = os.getloadavg()
     nx, ny = setup.grid.shape
-    return {"grid": [nx, ny], "threads": threads, "steps_timed": steps,
-            "seconds_per_step": per_step, "steps_per_block": steps_per_block,
-            "seconds_per_block": per_step * steps_per_block,
-            "grid_Mcell_s": nx * ny / per_step / 1e6,
-            "field_Mcell_s": 2 * nx * ny / per_step / 1e6}
+    steps_per_block = sonar.block_s / setup.fdtd.time_step_s
+    out: dict[str, Any] = {"grid": [nx, ny], "threads": threads, "steps_timed": steps,
+                           "repeats": repeats, "steps_per_block": steps_per_block,
+                           "load_average_before": load_before,
+                           "load_average_after": load_after}
+    for b, ts in times.items():
+        per_step = np.array(ts) / steps
+        rate = 2 * nx * ny / per_step / 1e6
+        q25, q75 = np.percentile(rate, [25, 75])
+        out[b] = {"seconds_per_step": float(np.median(per_step)),
+                  "seconds_per_block": float(np.median(per_step)) * steps_per_block,
+                  "seconds_per_block_range": [float(per_step.min() * steps_per_block),
+                                              float(per_step.max() * steps_per_block)],
+                  "field_Mcell_s": float(np.median(rate)),
+                  "field_Mcell_s_min": float(rate.min()),
+                  "field_Mcell_s_max": float(rate.max()),
+                  "field_Mcell_s_iqr": [float(q25), float(q75)],
+                  "field_Mcell_s_all": [float(r) for r in rate],
+                  "grid_Mcell_s": float(np.median(rate)) / 2}
+    out["numba"]["steps_per_sweep"] = STEPS_PER_SWEEP
+    out["speedup_vs_one_step_kernel"] = (out["numba-step"]["seconds_per_step"]
+                                         / out["numba"]["seconds_per_step"])
+    out["field_Mcell_s"] = out["numba"]["field_Mcell_s"]
+    out["seconds_per_block"] = out["numba"]["seconds_per_block"]
+    return out
 
 
 def _one_wall() -> tuple[Any, Any, SonarConfig, float]:
@@ -281,41 +344,70 @@ def _plot_engines(res: dict[str, Any], maps: dict[float, Any], ism_hm: Any) -> N
     fig.savefig(OUT / "fdtd_vs_ism.png", dpi=120)
 
 
+def _paper_rows() -> dict[str, Any]:
+    quiet = _wait_quiet(0.7, 600.0)
+    rows = [paper_block(th) for th in (1, 2)]
+    print(quiet, rows)
+    nx, ny = rows[0]["grid"]
+    bw = bandwidth(nx * ny, "float32", 2)  # ceiling over arrays of the paper grid's size
+    for r in rows:
+        rate = r["field_Mcell_s"] * 1e6
+        r["bytes_per_update_one_step"] = 24
+        r["bytes_per_update_blocked_memory"] = 24 / STEPS_PER_SWEEP
+        r["GB_s_moved_estimate_one_step_model"] = rate * 24 / 1e9
+        r["GB_s_memory_estimate_blocked"] = rate * 24 / STEPS_PER_SWEEP / 1e9
+        r["GB_s_moved_estimate_old_kernel"] = r["numba-step"]["field_Mcell_s"] * 1e6 * 24 / 1e9
+        r.update(bw)
+    return {"wait_for_quiet": quiet, "rows": rows}
+
+
 def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
+    res: dict[str, Any]
+    if sys.argv[1:] == ["--only", "paper"]:
+        res = json.loads((OUT / "fdtd.json").read_text())
+        res["paper_block"] = _paper_rows()
+        (OUT / "fdtd.json").write_text(json.dumps(res, indent=2))
+        _plot(res)
+        return
     t0 = time.perf_counter()
-    res: dict[str, Any] = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(),
-                           "numba": numba.__version__}
+    res = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(),
+           "numba": numba.__version__, "steps_per_sweep": STEPS_PER_SWEEP}
+    res["paper_block"] = _paper_rows()  # first, on a quiet machine
     rows: list[dict[str, Any]] = []
-    for n, steps in ((500, 20), (1000, 5)):
+    for n, steps in ((500, 4 * STEPS_PER_SWEEP), (1000, 2 * STEPS_PER_SWEEP)):
         for dtype in ("float32", "float64"):
             item = np.dtype(dtype).itemsize
             for threads in (1, 2):
                 bw = bandwidth(n * n, dtype, threads)
                 for nf in (1, 2):
-                    rate = kernel_rate(n, dtype, "numba", threads, nf, steps)
-                    field_rate = rate * nf
-                    moved = field_rate * 6 * item / 1e9  # p, qx, qy read + written
-                    rows.append({"n": n, "dtype": dtype, "threads": threads, "fields": nf,
-                                 "backend": "numba", "grid_Mcell_s": rate / 1e6,
-                                 "field_Mcell_s": field_rate / 1e6,
-                                 "GB_s_moved_estimate": moved, **bw,
-                                 "fraction_of_triad": moved / bw["triad_GB_s"]})
-                    print(rows[-1])
+                    for backend in ("numba", "numba-step"):
+                        if backend == "numba-step" and dtype == "float64":
+                            continue
+                        rate = kernel_rate(n, dtype, backend, threads, nf, steps)
+                        field_rate = rate * nf
+                        moved = field_rate * 6 * item / 1e9  # p, qx, qy read + written
+                        depth = STEPS_PER_SWEEP if backend == "numba" else 1
+                        rows.append({"n": n, "dtype": dtype, "threads": threads,
+                                     "fields": nf, "backend": backend,
+                                     "grid_Mcell_s": rate / 1e6,
+                                     "field_Mcell_s": field_rate / 1e6,
+                                     "GB_s_moved_estimate": moved,
+                                     "GB_s_memory_estimate": moved / depth, **bw,
+                                     "fraction_of_triad": moved / bw["triad_GB_s"]})
+                        print(rows[-1])
             rate = kernel_rate(n, dtype, "numpy", 1, 1, 2)
             rows.append({"n": n, "dtype": dtype, "threads": 1, "fields": 1, "backend": "numpy",
                          "grid_Mcell_s": rate / 1e6, "field_Mcell_s": rate / 1e6})
             print(rows[-1])
     res["kernels"] = rows
     for r in rows:
-        if r["backend"] == "numba" and r["fields"] == 1:
+        if r["backend"] != "numpy" and r["fields"] == 1:
             base = next(x for x in rows if x["backend"] == "numpy" and x["n"] == r["n"]
                         and x["dtype"] == r["dtype"])
             r["speedup_vs_numpy"] = r["field_Mcell_s"] / base["field_Mcell_s"]
-    res["denormals"] = denormal_effect(500, 20)
+    res["denormals"] = denormal_effect(500, 2 * STEPS_PER_SWEEP)
     print(res["denormals"])
-    res["paper_block"] = [paper_block_seconds(th, 20) for th in (1, 2)]
-    print(res["paper_block"])
     res["engines"] = compare_engines()
     res["load_average_end"] = os.getloadavg()
     res["wall_s"] = time.perf_counter() - t0
@@ -326,10 +418,20 @@ def main() -> None:
 def _plot(res: dict[str, Any]) -> None:
     rows: list[dict[str, Any]] = list(res["kernels"])
     fig, ax = plt.subplots(figsize=(11, 4.5))
-    labels = [f"{r['backend']} {r['n']}² {r['dtype'][5:]} {r['threads']}t {r['fields']}f"
-              for r in rows]
-    colors = ["tab:blue" if r["backend"] == "numba" else "tab:gray" for r in rows]
+    for p in res["paper_block"]["rows"]:
+        for b in ("numba", "numba-step"):
+            rows.append({"backend": b, "n": "paper", "dtype": "float32", "threads": p["threads"],
+                         "fields": 2, "field_Mcell_s": p[b]["field_Mcell_s"],
+                         "lo": p[b]["field_Mcell_s_min"], "hi": p[b]["field_Mcell_s_max"]})
+    labels = [f"{r['backend']} {r['n']}{'' if r['n'] == 'paper' else '²'} {r['dtype'][5:]} "
+              f"{r['threads']}t {r['fields']}f" for r in rows]
+    palette = {"numba": "tab:blue", "numba-step": "tab:orange", "numpy": "tab:gray"}
+    colors = [palette[r["backend"]] for r in rows]
     ax.bar(range(len(rows)), [r["field_Mcell_s"] for r in rows], color=colors)
+    for i, r in enumerate(rows):
+        if "lo" in r:  # paper domain: min-max over the repeats
+            ax.plot([i, i], [r["lo"], r["hi"]], color="k", lw=1)
+    ax.axhline(1500, color="tab:green", ls="--", lw=1)
     for i, r in enumerate(rows):
         if "triad_GB_s" in r:
             ceiling = r["triad_GB_s"] * 1e9 / (6 * (4 if r["dtype"] == "float32" else 8)) / 1e6
@@ -338,8 +440,10 @@ def _plot(res: dict[str, Any]) -> None:
     ax.set_ylabel("field-cell updates / s (M)")
     ax.set_yscale("log")
     la = res["load_average_start"]
-    ax.set_title(f"FDTD kernel (24-cell PML); red: triad-bandwidth ceiling at 24/48 B per "
-                 f"update; load average {la[0]:.1f} on {res['cpus']} CPUs", fontsize=9)
+    ax.set_title(f"FDTD kernels (24-cell PML; blue: {STEPS_PER_SWEEP} steps per sweep, "
+                 f"orange: one step per sweep); red: triad ceiling at 24/48 B per update "
+                 f"(one-step model); green: 1.5 G goal; load average {la[0]:.1f} on "
+                 f"{res['cpus']} CPUs", fontsize=8)
     fig.tight_layout()
     fig.savefig(OUT / "fdtd.png", dpi=120)
 
