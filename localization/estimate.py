@@ -82,6 +82,10 @@ class PoseEstimate:
         Whether a measurement was applied (False: prediction only).
     model : str
         Sensor model used ("correlation", "range" or "none").
+    likelihood_scale : float
+        Share of the block's log-likelihood the particle filter applied (1: all of it; less
+        when the update was tempered to keep ``min_ess_fraction`` of the particles, see
+        :func:`localization.particle_filter.temper_to_ess`).
     """
 
     pose: FloatArray
@@ -94,6 +98,7 @@ class PoseEstimate:
     direction_observable: bool
     updated: bool
     model: str
+    likelihood_scale: float = 1.0
 
 
 def circular_mean(angles: FloatArray, weights: FloatArray | None = None) -> float:
@@ -183,7 +188,7 @@ def _merge_wrap(labels: NDArray[np.int32], n: int) -> NDArray[np.int64]:
 
 def summarize(
     poses: FloatArray, log_w: FloatArray, config: ClusterConfig, *, ess: float,
-    direction_observable: bool, updated: bool, model: str,
+    direction_observable: bool, updated: bool, model: str, likelihood_scale: float = 1.0,
 ) -> PoseEstimate:
     """Build the :class:`PoseEstimate` of a particle set with normalized log-weights."""
     w = np.exp(log_w - log_w.max())
@@ -197,6 +202,7 @@ def summarize(
         modes=tuple(modes), ess=float(ess),
         converged=bool(best.weight >= config.converged_weight and compact),
         direction_observable=direction_observable, updated=updated, model=model,
+        likelihood_scale=float(likelihood_scale),
     )
 
 

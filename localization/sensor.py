@@ -100,8 +100,8 @@ class SensorConfig:
     min_range_m: float = 0.15
     max_range_m: float = 5.0
     n_headings: int = 360
-    beta: float = 100.0
-    z_rand: float = 0.05
+    beta: float = 200.0
+    z_rand: float = 0.001
     min_speed_m_s: float = 0.03
     map_blur_cells: float = 1.0
     range_gain_exponent: float = 1.0
