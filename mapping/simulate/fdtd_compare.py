@@ -585,6 +585,47 @@ def specular_echo(segments_m: ArrayLike, walls: Sequence[int],
                          direction_rad=float(math.atan2(d[1], d[0])), points_m=pts)
 
 
+def edge_echo_range_m(segments_m: ArrayLike, edge: EdgePath,
+                      position_at: Callable[[float], FloatArray], t_s: float,
+                      sonar: SonarConfig, fdtd: FdtdConfig) -> tuple[float, float] | None:
+    """Heat-map range of an edge-diffracted path for a moving sonar: half its retarded length
+    (emission one delay before reception, same walls and edge), and the same with each leg
+    at the grid's group velocity at the carrier (:func:`fdtd_length_m`). None if the path
+    does not exist for the emission point."""
+    seg = _segments(segments_m)
+    end = np.asarray(edge.edge_m, dtype=np.float64)
+    c = fdtd.speed(sonar)
+
+    def polyline(s: FloatArray, r: FloatArray) -> FloatArray | None:
+        a = specular_path(s, end, edge.walls_in, seg)
+        b = specular_path(end, r, edge.walls_out, seg)
+        return None if a is None or b is None else np.concatenate([a, b[1:]])
+
+    def length(s: FloatArray, r: FloatArray) -> float | None:
+        p = polyline(s, r)
+        return None if p is None else path_length_m(p)
+
+    sol = retarded(length, position_at, t_s, c)
+    if sol is None:
+        return None
+    pts = polyline(sol[1], np.asarray(position_at(t_s), dtype=np.float64))
+    if pts is None:
+        return None
+    return sol[0] / 2, fdtd_length_m(pts, sonar.carrier_hz, fdtd, c) / 2
+
+
+def nearest_prediction(n_theta: float, n_tau: float,
+                       predicted: Sequence[tuple[float, float]]) -> tuple[int, float, float]:
+    """Which predicted heat-map cell ``(angle bin, range bin)`` lies nearest a cell (Euclidean
+    in bin units); returns its index and the signed offsets ``(d_angle, d_range)`` of the cell
+    from it."""
+    if len(predicted) == 0:
+        raise ValueError("predicted must not be empty")
+    p = np.asarray(predicted, dtype=np.float64).reshape(-1, 2)
+    i = int(np.argmin((p[:, 0] - n_theta) ** 2 + (p[:, 1] - n_tau) ** 2))
+    return i, float(n_theta - p[i, 0]), float(n_tau - p[i, 1])
+
+
 def valid_wall_sequences(segments_m: ArrayLike, position_m: ArrayLike, max_order: int,
                          max_length_m: float) -> list[tuple[int, ...]]:
     """Brute force: every wall sequence up to ``max_order`` with a valid monostatic specular
