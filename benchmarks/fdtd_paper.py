@@ -214,6 +214,12 @@ def attribute(cell: tuple[int, int], cands: list[dict[str, Any]],
     return sorted(rows, key=lambda r: r["d_angle_bins"] ** 2 + r["d_range_bins"] ** 2)
 
 
+def _near(img: NDArray[np.float64], cd: dict[str, Any]) -> float:
+    """Largest value of a (angle, range) image within one bin of a candidate's cell."""
+    a, j = int(round(cd["n_theta"])), int(round(cd["n_tau"]))
+    return float(img[max(a - 1, 0): a + 2, max(j - 1, 0): j + 2].max())
+
+
 def run_case(name: str, sonar: SonarConfig, speed_m_s: float, grid_step_m: float,
              time_step_s: float, wall3_x0_m: float) -> tuple[dict[str, Any], dict[str, HeatMap]]:
     """Both engines on the block of paper-a nearest point (a); numbers and heat maps."""
@@ -292,6 +298,13 @@ def run_case(name: str, sonar: SonarConfig, speed_m_s: float, grid_step_m: float
             "peaks": [{**p, "candidates_within_1.5_bins":
                        attribute((int(p["n_theta"]), int(p["n_tau"])), cands)}
                       for p in _local(maps["residual"], N_RESIDUAL, top)]},
+        "free_end_direct_echoes": [
+            {"edge_m": cd["edge_m"], "fdtd_range_m": cd["fdtd_range_m"],
+             "angle_deg": cd["angle_deg"],
+             "max_difference_within_1_bin": _near(diff, cd),
+             "max_residual_map_within_1_bin": _near(maps["residual"].H[:, :n] / top, cd)}
+            for cd in cands if cd["kind"].startswith("diffraction")
+            and not cd["walls_before_edge"] and not cd["walls_after_edge"]],
         "specular_wall1_wall3_exists": specular_path(cmp.position_m, cmp.position_m, (0, 2),
                                                      scene.segments()) is not None,
         "seconds": cmp.seconds,

@@ -233,3 +233,20 @@ def test_render_without_dispersion_reproduces_the_image_source_block() -> None:
     assert np.sum(x**2) / np.sum(y**2) == pytest.approx(1.0, abs=0.01)
     with pytest.raises(ValueError, match="direction_rad"):
         render_paths(block.paths, np.zeros(block.paths.n + 1), SCALED, fdtd, 1)
+
+
+def test_edge_echo_range_of_a_static_sonar_is_half_the_path_and_nearest_prediction() -> None:
+    from mapping.simulate.fdtd_compare import edge_echo_range_m, nearest_prediction
+
+    seg = np.array([[[0.0, 2.0], [3.0, 2.0]], [[4.0, -1.0], [4.0, 3.5]]])
+    p = np.array([1.0, 1.0])
+    fdtd = FdtdConfig(grid_step_m=0.01, time_step_s=1.6667e-5)
+    for e in edge_diffraction_paths(seg, p, p, [0.0, 1.0], max_reflections=1):
+        r = edge_echo_range_m(seg, e, lambda t: p, 0.1, SCALED, fdtd)
+        assert r is not None
+        assert r[0] == pytest.approx(e.range_m, abs=1e-12)
+        assert r[1] == pytest.approx(fdtd_length_m(e.points_m, SCALED.carrier_hz, fdtd, C) / 2)
+        assert r[1] > r[0]  # the grid is slow
+    assert nearest_prediction(3, 10, [(0.0, 0.0), (3.5, 9.0), (3.0, 12.0)]) == (1, -0.5, 1.0)
+    with pytest.raises(ValueError, match="predicted"):
+        nearest_prediction(0, 0, [])
