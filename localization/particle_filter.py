@@ -81,6 +81,13 @@ class FilterConfig:
         nats the share injected is ``1 - exp(t) w_fast / w_slow``. Ordinary block-to-block
         swings of the mean correlation while tracking are below ~0.05 on the benchmark
         runs; a kidnapped set drops by 0.15-0.3.
+    z_rand_unconverged : float or None
+        Floor (``SensorConfig.z_rand``'s role) used while the set has not converged (see
+        :class:`localization.estimate.ClusterConfig`: one compact mode holding >= 90 % of
+        the weight), e.g. after a global start. Several hypotheses then share the particles,
+        each core holds few of them, and a low floor lets one block's noise decide between
+        hypotheses; once converged the sensor's own (low) floor applies, so the reported
+        covariance is the likelihood's, not the floor's. None: always the sensor's floor.
     min_ess_fraction : float
         Tempering floor: when a block's full likelihood would leave an effective sample size
         below this share of the particles, only the largest share of its log-likelihood
@@ -111,6 +118,7 @@ class FilterConfig:
     max_inject_fraction: float = 0.25
     inject_threshold_rho: float = 0.08
     min_ess_fraction: float = 0.05
+    z_rand_unconverged: float | None = 0.01
     inject_candidates: int = 16
     global_oversample: int = 10
     kld: bool = False
@@ -140,6 +148,9 @@ class FilterConfig:
         if not 0 <= self.inject_threshold_rho <= 2:
             raise ValueError(
                 f"inject_threshold_rho must be in [0, 2], got {self.inject_threshold_rho}")
+        if self.z_rand_unconverged is not None and not 0 < self.z_rand_unconverged < 1:
+            raise ValueError(
+                f"z_rand_unconverged must be in (0, 1) or None, got {self.z_rand_unconverged}")
         if not 0 <= self.min_ess_fraction < 1:
             raise ValueError(f"min_ess_fraction must be in [0, 1), got {self.min_ess_fraction}")
         if self.inject_candidates < 1:
@@ -198,13 +209,14 @@ def predict(poses: FloatArray, speed_m_s: float, yaw_rate_rad_s: float, dt_s: fl
 
 
 def weigh(log_w: FloatArray, poses: FloatArray, tables: SensorTables,
-          measurement: Measurement, min_ess_fraction: float = 0.0
-          ) -> tuple[FloatArray, float, float]:
+          measurement: Measurement, min_ess_fraction: float = 0.0,
+          z_rand: float | None = None) -> tuple[FloatArray, float, float]:
     """Measurement update.
 
     The likelihood is floored relative to the best particle (:func:`log_likelihood` with
     ``rho_ref`` = the set's best correlation), so one block changes weight ratios by at most
-    ``1 / z_rand``; tempered by :func:`temper_to_ess` when ``min_ess_fraction`` > 0.
+    ``1 / z_rand`` (``z_rand`` overrides the sensor's floor); tempered by
+    :func:`temper_to_ess` when ``min_ess_fraction`` > 0.
     Returns the normalized log-weights, the augmented-MCL statistic (the prior-weighted
     mean log-likelihood ``beta * E[rho - 1]`` of the set, the log of its geometric mean
     likelihood, see the module docstring; ``-inf`` when no particle is on the map), and
@@ -213,7 +225,8 @@ def weigh(log_w: FloatArray, poses: FloatArray, tables: SensorTables,
     rho = score_poses(tables, measurement, poses)
     finite = np.isfinite(rho)
     ref = float(np.max(rho[finite])) if finite.any() else 1.0
-    ll = log_likelihood(rho, tables.config, ref)
+    cfg = tables.config if z_rand is None else dataclasses.replace(tables.config, z_rand=z_rand)
+    ll = log_likelihood(rho, cfg, ref)
     scale = temper_to_ess(log_w, ll, min_ess_fraction * log_w.size) if min_ess_fraction else 1.0
     new, _ = resampling.normalize_log_weights(log_w + scale * ll)
     if not finite.any():
@@ -336,6 +349,7 @@ class ParticleFilter:
         self.poses = init_global(self.tables, n, self.rng)
         self.log_w = np.full(n, -math.log(n))
         self.log_w_slow = self.log_w_fast = -np.inf
+        self.converged = False
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -343,6 +357,10 @@ class ParticleFilter:
         self.poses = init_tracked(pose, cov, n, self.rng)
         self.log_w = np.full(n, -math.log(n))
         self.log_w_slow = self.log_w_fast = -np.inf
+        c = np.asarray(cov, dtype=np.float64)
+        cl = self.config.cluster
+        self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
+                              and math.sqrt(max(c[2, 2], 0.0)) <= cl.converged_std_rad)
 
     @property
     def n_particles(self) -> int:
@@ -385,8 +403,9 @@ class ParticleFilter:
         scale = 1.0
         slow, fast = self.log_w_slow, self.log_w_fast
         if meas is not None:
+            z = None if self.converged else cfg.z_rand_unconverged
             log_w, log_avg, scale = weigh(log_w, poses, self.tables, meas,
-                                          cfg.min_ess_fraction)
+                                          cfg.min_ess_fraction, z)
             if not np.isfinite(log_avg):
                 pass
             elif not np.isfinite(slow):
@@ -415,6 +434,8 @@ class ParticleFilter:
         self.poses, self.log_w = poses, log_w
         self.log_w_slow, self.log_w_fast = slow, fast
         self.n_steps += 1
+        if meas is not None:
+            self.converged = estimate.converged
         return estimate
 
     # -- checkpointing
@@ -427,6 +448,7 @@ class ParticleFilter:
             "log_w": self.log_w.copy(),
             "log_w_slow_fast": np.array([self.log_w_slow, self.log_w_fast]),
             "n_steps": np.array(self.n_steps, dtype=np.int64),
+            "converged": np.array(self.converged),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -450,6 +472,7 @@ class ParticleFilter:
         pf.poses, pf.log_w = poses, log_w
         pf.log_w_slow, pf.log_w_fast = (float(v) for v in state["log_w_slow_fast"])
         pf.n_steps = int(state["n_steps"])
+        pf.converged = bool(state["converged"]) if "converged" in state else False
         return pf
 
 

@@ -131,7 +131,8 @@ def track(filt: Steppable, run: Run, hms: list[HeatMap], n_blocks: int | None = 
     m = track_metrics(np.array(poses), np.array(covs), run.pose[:n])
     sym = track_metrics(np.array(poses), np.array(covs),
                         modulo_symmetry(np.array(poses), run.pose[:n], scene))
-    return {"metrics": dataclasses.asdict(m), "metrics_mod_sym": dataclasses.asdict(sym),
+    return {"name": str(run.meta.get("path", scene)),
+            "metrics": dataclasses.asdict(m), "metrics_mod_sym": dataclasses.asdict(sym),
             "times_s": times[1:], "cpu_s": cpu[1:]}
 
 
@@ -160,7 +161,9 @@ def summarize_cases(tracked: list[dict[str, Any]], global_: list[dict[str, Any]]
         "tracking_position_rmse_m": rmse("position_rmse_m"),
         "tracking_heading_rmse_deg": math.degrees(rmse("heading_rmse_rad")),
         "tracking_lost_runs": sum(c["metrics"]["blocks_to_converge"] != 0 for c in tracked),
-        "tracking_nees_mean": float(np.nanmean([c["metrics"]["nees_mean"] for c in tracked])),
+        "tracking_nees_mean": float(np.nanmean([c["metrics"]["nees_mean"] for c in tracked]))
+        if tracked else math.nan,
+        "tracking_nees_per_run": {c["name"]: c["metrics_mod_sym"]["nees_mean"] for c in tracked},
         "global_success_rate_8_blocks": float(np.mean([b is not None and b <= 8
                                                        for b in conv])) if conv else math.nan,
         "global_blocks_to_converge": conv,
@@ -307,7 +310,7 @@ def plot(results: dict[str, Any], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
     colors = {"correlation": "tab:blue", "range": "tab:orange"}
     for model in MODELS:
         rows = [r for r in results["configs"] if r["model"] == model and r["filter"] == "pf"
@@ -336,6 +339,17 @@ def plot(results: dict[str, Any], path: Path) -> None:
     axes[1].set(xscale="log", xlabel="median time per update (ms)", ylim=(-0.05, 1.05),
                 ylabel="share converged within 8 blocks",
                 title="global localization (curve runs)")
+    sweep = results["beta_sweep"]
+    names = sorted({k for r in sweep for k in r["tracking_nees_per_run"]})
+    for name in names:
+        axes[2].plot([r["beta"] for r in sweep],
+                     [r["tracking_nees_per_run"].get(name, math.nan) for r in sweep], "o-",
+                     label=name)
+    axes[2].axhline(3.0, color="grey", ls="--", lw=0.8, label="honest (3 dof)")
+    axes[2].axvline(200.0, color="k", ls=":", lw=0.8, label="default beta")
+    axes[2].set(xscale="log", yscale="log", xlabel="sensor sharpness beta",
+                ylabel="mean NEES of the best mode (tracked, mod symmetry)",
+                title="covariance honesty, 1000 particles")
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
