@@ -560,10 +560,10 @@ def pick_beta(betas: Sequence[float], nees_mean: Sequence[float], lost_runs: Seq
 
     Among the candidates with no lost run, the mean NEES is taken as piecewise linear in
     ``(log beta, log NEES)``; the first upward crossing of ``target_nees`` is returned (a
-    sharper likelihood reports a tighter covariance, so NEES grows with beta until the
-    ``z_rand`` floor takes over). Without a crossing, the candidate whose NEES is nearest to
-    the target in log ratio (with the default floor NEES peaks near beta 100 and stays below
-    3 on the benchmark's maps, so that is the peak).
+    sharper likelihood reports a tighter covariance, so NEES grows with beta). Without a
+    crossing, the candidate whose NEES is nearest to the target in log ratio. (Under the
+    earlier 5 % floor NEES peaked near beta 100 and never reached 3; with the default
+    ``z_rand`` = 1e-3 it rises through 3 on the benchmark maps, see the README.)
 
     Raises
     ------

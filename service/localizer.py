@@ -43,7 +43,8 @@ def estimate_out(est: PoseEstimate) -> EstimateOut:
         ess=float(est.ess), converged=bool(est.converged),
         direction_observable=bool(est.direction_observable),
         covariance_all=mat(est.cov_all),
-        extra={"model": est.model, "updated": bool(est.updated)},
+        extra={"model": est.model, "updated": bool(est.updated),
+               "likelihood_scale": float(est.likelihood_scale)},
     )
 
 

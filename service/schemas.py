@@ -185,6 +185,9 @@ class Estimate(BaseModel):
     ess: float = Field(description="effective sample size")
     converged: bool
     direction_observable: bool
+    likelihood_scale: float = Field(
+        1.0, description="share of this block's log-likelihood applied (1: all; less when "
+        "the update was tempered to keep enough particles alive)")
     processing_ms: float = Field(description="server time for this update")
 
 

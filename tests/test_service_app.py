@@ -206,6 +206,7 @@ def check_estimate(e: dict[str, Any], seq: int) -> None:
     assert e["modes"] and abs(sum(m["weight"] for m in e["modes"]) - 1) < 0.05 + 1e-9
     assert 1 <= e["ess"] <= 300 + 1e-6 and e["processing_ms"] > 0
     assert e["direction_observable"] is True
+    assert 0.0 < e["likelihood_scale"] <= 1.0
 
 
 def test_blocks_in_three_encodings(client: TestClient) -> None:

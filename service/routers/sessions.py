@@ -63,6 +63,7 @@ def estimate_model(session_id: str, seq: int | None, est: EstimateOut) -> Estima
         modes=[Mode(pose=pose(m[0], m[1], m[2]), weight=float(m[3])) for m in est.modes],
         ess=float(est.ess), converged=bool(est.converged),
         direction_observable=bool(est.direction_observable),
+        likelihood_scale=float(est.extra.get("likelihood_scale", 1.0)),
         processing_ms=float(est.processing_ms),
     )
 
