@@ -29,7 +29,7 @@ class MotionNoise:
 
     The defaults (translation std 7 % of the distance, rotation std 11 % of the distance in
     rad/m) were calibrated with the sensor's ``beta`` on simulated runs with 0.005 m/s
-    odometry speed noise (benchmarks/localization.py); a real robot may need more.
+    odometry speed noise (benchmarks/localization_bench.py); a real robot may need more.
 
     Parameters
     ----------
