@@ -42,15 +42,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from localization.calibration import CalibrationRun, calibrate_beta  # noqa: E402
 from localization.estimate import track_metrics  # noqa: E402
 from localization.grid_filter import GridFilter  # noqa: E402
 from localization.particle_filter import (  # noqa: E402
-    CalibrationRun,
     FilterConfig,
     ParticleFilter,
     Steppable,
     block_odometry,
-    calibrate_beta,
 )
 from localization.sensor import Model, SensorConfig, SensorTables, build_tables  # noqa: E402
 from mapping.heatmap import HeatMap, heatmap_of_run  # noqa: E402

@@ -17,13 +17,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from localization.calibration import pick_beta
 from localization.estimate import PoseEstimate, circular_std, pose_error
 from localization.motion import wrap_angle
 from localization.particle_filter import (
     FilterConfig,
     ParticleFilter,
     init_tracked,
-    pick_beta,
     predict,
     resample,
     temper_to_ess,
@@ -464,8 +464,9 @@ def test_calibrate_beta_transfers_to_held_out_run(
     at a sharp beta and injected poses at the room's mirror images into a well-tracked
     set. With the averages on the mean log-likelihood (see localization.particle_filter)
     z_rand = 1e-3 tracks every benchmark run and NEES rises with beta through 3."""
+    from localization.calibration import CalibrationRun, calibrate_beta
     from localization.estimate import track_metrics
-    from localization.particle_filter import CalibrationRun, calibrate_beta, run_filter
+    from localization.particle_filter import run_filter
     from mapping.heatmap import heatmap_of_run
     from mapping.path import builtin_path
     from mapping.scene import builtin_scene
