@@ -25,7 +25,7 @@ from localization.sensor import (
     uses_direction,
     validate_block,
 )
-from localization.sensor import _bin_ranges as bin_ranges
+from localization.sensor_measurement import _bin_ranges as bin_ranges
 from mapping.heatmap import HeatMap
 from tests._localization_helpers import ASYMMETRIC_ROOM, rasterize, synthetic_heatmap
 
