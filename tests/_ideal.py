@@ -40,7 +40,7 @@ def ideal_heatmap(
     (corners) seen from anywhere.
     """
     angles = np.pi * np.arange(n_dirs) / (n_dirs - 1)
-    ranges = dr * np.arange(n_samples)
+    ranges = dr * np.arange(n_samples, dtype=np.float64)
     H = np.zeros((n_dirs, n_samples))
     echoes = specular_points(pose, segments)
     for q in ([] if points is None else np.asarray(points)):

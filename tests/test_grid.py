@@ -28,7 +28,7 @@ RES = 0.05
 def _random_heatmap(rng: np.random.Generator, n_dirs: int = 8, n_samples: int = 500) -> HeatMap:
     return HeatMap(H=rng.random((n_dirs, n_samples)),
                    angles_rad=np.pi * np.arange(n_dirs) / (n_dirs - 1),
-                   ranges_m=0.00425 * np.arange(n_samples), speed_m_s=0.1,
+                   ranges_m=0.00425 * np.arange(n_samples, dtype=np.float64), speed_m_s=0.1,
                    direction_observable=True)
 
 
@@ -71,7 +71,7 @@ def test_single_wall_ridge_on_wall_and_mirror_ghost_where_predicted() -> None:
 def test_interval_max_gives_continuous_wall_unlike_centre_sample() -> None:
     """A +-8 mm peak read at 50 mm cell centres leaves gaps; the interval maximum does not."""
     pose = np.array([0.0, 0.0, 0.0])
-    ranges = 0.00425 * np.arange(600)
+    ranges = 0.00425 * np.arange(600, dtype=np.float64)
     ring = np.exp(-0.5 * ((ranges - 1.0) / 0.004) ** 2)  # same echo in every row: a ring
     hm = HeatMap(H=np.tile(ring, (30, 1)), angles_rad=np.pi * np.arange(30) / 29,
                  ranges_m=ranges, speed_m_s=0.1, direction_observable=True)
@@ -105,7 +105,8 @@ def test_numba_equals_numpy_twin(seed: int, literal: bool) -> None:
     ext = map_extent(pose[None], 1.0, RES)
     G = ext.zeros()
     backproject(G, ext, hm, pose, params, engine="numba")
-    ref = backproject_numpy(ext.shape, *ext.origin_m, RES, hm.H, 0.0, 0.00425, *pose,
+    ref = backproject_numpy(ext.shape, ext.origin_m[0], ext.origin_m[1], RES, hm.H, 0.0,
+                            0.00425, float(pose[0]), float(pose[1]), float(pose[2]),
                             params.radius_m, literal)
     np.testing.assert_allclose(G, ref, rtol=0, atol=1e-12)
 
@@ -129,7 +130,8 @@ def test_literal_form_loses_quadrant_and_indexes_past_n() -> None:
     H = np.zeros((n_dirs, 800))
     H[n_dirs - 1, :] = 1.0  # only straight behind (angle pi) is lit
     hm = HeatMap(H=H, angles_rad=np.pi * np.arange(n_dirs) / (n_dirs - 1),
-                 ranges_m=0.00425 * np.arange(800), speed_m_s=0.1, direction_observable=True)
+                 ranges_m=0.00425 * np.arange(800, dtype=np.float64), speed_m_s=0.1,
+                 direction_observable=True)
     ext = GridExtent((-1.5, -1.5), (61, 61), RES)
     pose = np.array([0.0, 0.0, 0.0])
     intended, literal = ext.zeros(), ext.zeros()

@@ -19,7 +19,7 @@ def _run(n: int = 3) -> Run:
     return Run(
         config=cfg,
         samples=rng.normal(size=(n, cfg.block_samples)).astype(np.float32),
-        t_s=np.arange(n) * cfg.block_s,
+        t_s=np.arange(n, dtype=np.float64) * cfg.block_s,
         speed_m_s=np.full(n, 0.1),
         yaw_rate_rad_s=np.zeros(n),
         pose=pose,
