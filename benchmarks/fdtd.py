@@ -203,11 +203,13 @@ def paper_block(threads: int, steps: int = 4 * STEPS_PER_SWEEP,
     _spin(both, 1.0)
     load_before = os.getloadavg()
     times: dict[str, list[float]] = {b: [] for b in states}
+    shares: dict[str, list[float]] = {b: [] for b in states}
     for _ in range(repeats):
         for b, st in states.items():
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             advance(setup, st, steps)
             times[b].append(time.perf_counter() - t)
+            shares[b].append((time.process_time() - c) / (times[b][-1] * threads))
     load_after = os.getloadavg()
     nx, ny = setup.grid.shape
     steps_per_block = sonar.block_s / setup.fdtd.time_step_s
@@ -228,6 +230,10 @@ def paper_block(threads: int, steps: int = 4 * STEPS_PER_SWEEP,
                   "field_Mcell_s_max": float(rate.max()),
                   "field_Mcell_s_iqr": [float(q25), float(q75)],
                   "field_Mcell_s_all": [float(r) for r in rate],
+                  # CPU seconds of this process / (wall seconds x threads): well below 1
+                  # when other jobs took the cores (OpenMP spin-waits count as CPU, so a
+                  # value near 1 does not prove the threads had the cores)
+                  "cpu_share_all": [float(x) for x in shares[b]],
                   "grid_Mcell_s": float(np.median(rate)) / 2}
     out["numba"]["steps_per_sweep"] = STEPS_PER_SWEEP
     out["speedup_vs_one_step_kernel"] = (out["numba-step"]["seconds_per_step"]

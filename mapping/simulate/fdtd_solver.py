@@ -28,8 +28,9 @@ _FLUSH = 1e-30
 #: Below this many field cells the kernel runs on one thread (per-sweep barriers dominate).
 _SMALL_GRID_CELLS = 200_000
 #: Default time steps per sweep over the rows (temporal blocking, ``_k._run_sweeps``).
-#: Measured on the paper-scene domain (970 x 771, two fields, float32, one thread): 1, 2, 4,
-#: 8, 16, 32 steps per sweep ran 0.95, 1.14, 1.36, 1.54, 1.68, 1.66x the one-step kernel.
+#: Measured on the paper-scene domain (970 x 771, two fields, float32, one thread, helpers
+#: not yet inlined, interleaved): 1, 2, 4, 8, 16 steps per sweep ran 0.95, 1.14, 1.36, 1.54,
+#: 1.68x the one-step kernel; 32 and 64 within 2 % of 16 in a second run.
 STEPS_PER_SWEEP = 16
 _BACKENDS = ("numba", "numba-step", "numpy")
 
