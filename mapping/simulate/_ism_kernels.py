@@ -1,6 +1,6 @@
-"""numba kernels of :mod:`mapping.simulate.ism` (private; imported only by ``ism.py``).
+"""numba kernels of :mod:`mapping.simulate.ism` (private; imported only by ``ism_render.py``).
 
-The plain numpy twin (``_render_numpy`` in :mod:`mapping.simulate.ism`) computes the same
+The plain numpy twin (``_render_numpy`` in :mod:`mapping.simulate.ism_render`) computes the same
 sum and the tests compare the two.
 """
 
