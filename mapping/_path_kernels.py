@@ -1,6 +1,7 @@
-"""numba kernel of :mod:`mapping.path` (private; imported only by ``mapping/path.py``).
+"""numba kernel of :mod:`mapping.trajectory` (private; imported only by ``mapping/trajectory.py``).
 
-The plain numpy twin is :func:`mapping.path.position_velocity_numpy`; the tests compare them.
+The plain numpy twin is :func:`mapping.trajectory.position_velocity_numpy` (re-exported by
+:mod:`mapping.path`); the tests compare them.
 """
 
 from __future__ import annotations
