@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -51,8 +52,10 @@ def test_shoebox_images_up_to_order_two_by_hand():
     parallel = {(x, 2 * LY + y), (x, -2 * LY + y), (2 * LX + x, y), (-2 * LX + x, y)}
     assert {p for p, (k, _) in got.items() if k == 1} == first
     assert {p for p, (k, _) in got.items() if k == 2} == corners | parallel
-    # the walls of the traced paths: bottom (0) then top (2) gives y -> -y -> 2 LY + y
-    assert got[(x, 2 * LY + y)][1] == (2, 0)
+    # the walls of the traced paths, in the order the sound hits them: bottom (0) then
+    # top (2) gives y -> -y -> 2 LY + y
+    assert got[(x, 2 * LY + y)][1] == (0, 2)
+    assert got[(x, -2 * LY + y)][1] == (2, 0)
 
 
 @settings(max_examples=25, deadline=None)
@@ -114,6 +117,62 @@ def test_pillar_occludes_the_wall_behind_it():
     # beside the pillar the top wall is seen
     got = _valid_points(PILLAR_ROOM, (4.5, 1.0), 1)
     assert 2 in {walls[0] for k, walls in got.values() if k == 1}
+
+
+# ---- wall order: the order the sound hits them (regression) -------------------------------
+# wall A along the x axis, wall B at 60 degrees; both start at the apex (0, 0)
+WEDGE = np.array([[[0.0, 0.0], [4.0, 0.0]], [[0.0, 0.0], [2.0, 2.0 * math.sqrt(3.0)]]])
+
+
+def _rotation(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def _reflect(d: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """Direction ``d`` after a specular reflection in ``wall``'s line."""
+    t = (wall[1] - wall[0]) / np.linalg.norm(wall[1] - wall[0])
+    return 2.0 * np.dot(d, t) * t - d
+
+
+def _ray_hit(p: np.ndarray, d: np.ndarray, wall: np.ndarray) -> tuple[float, float]:
+    """Ray parameter s > 0 and wall parameter u where ``p + s d`` meets ``wall``."""
+    e = wall[1] - wall[0]
+    s, u = np.linalg.solve(np.column_stack([d, -e]), wall[0] - p)
+    return float(s), float(u)
+
+
+def test_traced_walls_are_in_the_order_the_sound_hits_them():
+    """Two walls at 60 degrees, robot at x = (1.5, 0.5) between them. By hand: the sound that
+    hits A first and then B comes back from the image M_B(M_A x), the rotation of x by +120
+    degrees about the apex, (-1.1830, 1.0490); its first reflection point is where the line
+    from x to M_A(M_B x) = R(-120) x = (-0.3170, -1.5490) crosses A, (1.0566, 0). The reverse
+    path (B first) comes from R(-120) x. A ray followed by the law of reflection (no images)
+    from x through (1.0566, 0) goes on to B and back to x. Regression: the trace used to list
+    the walls receiver-first, i.e. (B, A) for this path."""
+    x = np.array([1.5, 0.5])
+    images, tr = _trace(WEDGE, tuple(x), 2)
+    pts = images.positions(x[None])[:, 0]
+    second = {tuple(int(w) for w in tr.walls[i, 0] if w >= 0): pts[i]
+              for i in np.flatnonzero(tr.valid[:, 0] & (tr.order[:, 0] == 2))}
+    assert set(second) == {(0, 1), (1, 0)}
+    assert np.allclose(second[(0, 1)], [-1.1830127, 1.0490381], atol=1e-6)
+    assert np.allclose(second[(0, 1)], _rotation(120.0) @ x, atol=1e-12)
+    assert np.allclose(second[(1, 0)], _rotation(-120.0) @ x, atol=1e-12)
+    # first reflection point of the (A, B) path, by unfolding: on A, at (1.0566, 0)
+    far = _rotation(-120.0) @ x
+    p_a = x + (x[1] / (x[1] - far[1])) * (far - x)
+    assert abs(p_a[1]) < 1e-12 and abs(p_a[0] - 1.0566243) < 1e-6
+    # the law of reflection from there: A, then B, then straight back to x
+    d = _reflect(p_a - x, WEDGE[0])
+    s, u = _ray_hit(p_a, d, WEDGE[1])
+    assert s > 0 and 0 <= u <= 1
+    p_b = p_a + s * d
+    d = _reflect(d, WEDGE[1])
+    back = x - p_b
+    assert abs(d[0] * back[1] - d[1] * back[0]) < 1e-9 and np.dot(d, back) > 0
+    length = np.linalg.norm(p_a - x) + np.linalg.norm(p_b - p_a) + np.linalg.norm(x - p_b)
+    assert abs(length - np.linalg.norm(second[(0, 1)] - x)) < 1e-9
 
 
 # ---- a second, independent method: solve the reflection points directly -----------------

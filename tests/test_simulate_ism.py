@@ -186,6 +186,41 @@ def test_path_table_doppler_and_angle_match_the_analytic_truth():
     assert abs(table.angle_to_velocity_rad[0] - truth.angle_rad) < 1e-3
 
 
+def test_path_table_walls_are_in_the_order_the_sound_hits_them():
+    """Two walls at 60 degrees (A along the x axis, B at 60 degrees from the apex), robot at
+    1 m/s along y = 0.4. The sound that hits A first and then B comes back from the image
+    ``R(+120) x(t - tau)`` (M_B M_A, a rotation about the apex), its reverse from
+    ``R(-120) x(t - tau)``; for a moving sonar their retarded delays differ (microseconds).
+    The table row labelled (A, B) carries the delay of the A-first path, solved by hand by
+    fixed-point iteration. Regression: the labels of a path and its reverse were swapped."""
+    speed, y0 = 1.0, 0.4
+    scene = _scene([((0.0, 0.0), (4.0, 0.0)), ((0.0, 0.0), (2.0, 2.0 * math.sqrt(3.0)))])
+    traj = _line((1.0, y0), 0.0, speed)
+    engine = IsmConfig(order=2)
+    prepared = prepare_scene(scene, CFG1, engine)
+    plan = plan_stretch(prepared, traj, CFG1, engine, 0, CFG1.block_samples)
+    table = path_table(plan, prepared, traj, CFG1, engine)
+    t_mid = CFG1.block_s / 2
+
+    def x_at(t: float) -> np.ndarray:
+        return np.array([1.0 + speed * t, y0])
+
+    def hand_delay(deg: float) -> float:
+        a = math.radians(deg)
+        R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+        tau = 0.0
+        for _ in range(50):
+            tau = float(np.linalg.norm(x_at(t_mid) - R @ x_at(t_mid - tau))) / C
+        return tau
+
+    rows = {w: i for i, w in enumerate(table.walls) if len(w) == 2}
+    assert set(rows) == {(0, 1), (1, 0)}
+    a_first, b_first = hand_delay(120.0), hand_delay(-120.0)
+    assert abs(a_first - b_first) > 1e-6  # the test can tell the two apart
+    assert abs(table.delay_s[rows[(0, 1)]] - a_first) < 1e-10
+    assert abs(table.delay_s[rows[(1, 0)]] - b_first) < 1e-10
+
+
 # ---- statics, interpolation, continuity --------------------------------------------------------
 def test_speed_zero_reduces_to_the_static_image_response():
     scene = builtin_scene("paper")

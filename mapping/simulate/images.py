@@ -356,7 +356,9 @@ def trace_images(
     reflected in that wall and the trace continues from the hit point, excluding the wall
     just left. A path is valid when, after its reflections, the target is the source and
     the last leg meets no wall; a leg that reaches the source while reflections remain, or
-    a leg towards a virtual target that meets no wall, means no specular path.
+    a leg towards a virtual target that meets no wall, means no specular path. The trace
+    meets the walls last-hit first, so ``walls`` is reversed at the end into the order the
+    sound hits them (the first entry is the wall of the first reflection).
     """
     seg = _check_segments(segments)
     R = np.asarray(reflection, dtype=np.float64)
@@ -415,10 +417,23 @@ def trace_images(
     return TraceResult(
         valid=valid,
         order=np.where(valid, order.reshape(shape), 0),
-        walls=np.where(valid[..., None], walls.reshape(n, m, max_order), -1),
+        walls=np.where(valid[..., None], _sound_order(walls, order).reshape(n, m, max_order), -1),
         reflection=np.where(valid, rprod.reshape(shape), 0.0),
         path_length_m=length,
     )
+
+
+def _sound_order(walls: IntArray, order: IntArray) -> IntArray:
+    """Each row's first ``order`` wall ids reversed, -1 after them.
+
+    :func:`trace_images` walks from the receiver back to the source, so it records the
+    walls last-hit first; this turns rows ``(w_k, ..., w_1, -1, ...)`` of shape (N, K) into
+    the order the sound hits them, ``(w_1, ..., w_k, -1, ...)``.
+    """
+    j = np.arange(walls.shape[1])[None, :]
+    src = order[:, None] - 1 - j
+    picked = np.take_along_axis(walls, np.clip(src, 0, None), axis=1)
+    return np.where(src >= 0, picked, -1).astype(np.int64)
 
 
 def _first_hit(
