@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 
 lint: $(STAMP)
 	$(BIN)/ruff check mapping localization service tests benchmarks
-	$(BIN)/mypy mapping localization service
+	$(BIN)/mypy mapping localization service tests
 
 test: lint
 	$(BIN)/python -m pytest

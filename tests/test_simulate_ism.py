@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from mapping.path import builtin_path, polyline_path, stationary_path
 from mapping.scene import Scene, builtin_scene
 from mapping.signal import SonarConfig, transmitted_at, tx_period
 from mapping.simulate import IsmConfig, iter_blocks, simulate_run
+from mapping.simulate.base import TrajectoryLike
 from mapping.simulate.ism import (
     _render_numpy,
     delay_at_samples,
@@ -520,11 +522,12 @@ class _Line:
     def __init__(self, p0: np.ndarray, v: np.ndarray) -> None:
         self.p0, self.v = p0, v
 
-    def position(self, t):
-        return self.p0[None] + np.atleast_1d(np.asarray(t, float))[:, None] * self.v[None]
+    def position(self, t_s: Any) -> np.ndarray:
+        return np.asarray(self.p0[None] + np.atleast_1d(np.asarray(t_s, float))[:, None]
+                          * self.v[None], dtype=np.float64)
 
-    def velocity(self, t):
-        return np.broadcast_to(self.v, (np.size(t), 2)).copy()
+    def velocity(self, t_s: Any) -> np.ndarray:
+        return np.broadcast_to(self.v, (np.size(t_s), 2)).copy()
 
 
 @settings(max_examples=40, deadline=None)
@@ -541,7 +544,8 @@ def test_retarded_delay_solves_its_equation(px, py, heading, speed, wall_angle, 
     foot = p0 + wall_dist * n
     seg = np.array([[foot - 5 * np.array([-n[1], n[0]]), foot + 5 * np.array([-n[1], n[0]])]])
     A, b = mirror_maps(seg)
-    traj = _Line(p0, speed * np.array([math.cos(heading), math.sin(heading)]))
+    line = _Line(p0, speed * np.array([math.cos(heading), math.sin(heading)]))
+    traj = cast("TrajectoryLike", line)  # retarded_delay needs position() only
     t = np.linspace(-1.0, 1.0, 7)
     tau, dtau = retarded_delay(A, b, traj, t, C, 3)
     assert tau.shape == dtau.shape == (1, 7) and np.all(tau > 0)
@@ -552,5 +556,5 @@ def test_retarded_delay_solves_its_equation(px, py, heading, speed, wall_angle, 
     fd = (retarded_delay(A, b, traj, t + h, C, 3)[0] - retarded_delay(A, b, traj, t - h, C, 3)[0])
     assert np.allclose(dtau, fd / (2 * h), atol=1e-9)
     # a wall: exactly (c + u) / (c - u) with u the approach speed
-    u = float(traj.v @ n)
+    u = float(line.v @ n)
     assert np.allclose(1 - dtau, (C + u) / (C - u), atol=1e-10)
