@@ -30,7 +30,8 @@ from mapping.simulate.fdtd_compare import (
     valid_wall_sequences,
     window_peak,
 )
-from mapping.simulate.images import candidate_images, trace_images
+from mapping.simulate.images import candidate_images
+from mapping.simulate.images_trace import trace_images
 
 C = 340.0
 L_CORNERS = [(0, 0), (6, 0), (6, 3), (3, 3), (3, 6), (0, 6)]

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mapping.simulate.images import candidate_images, mirror_maps, trace_images
+from mapping.simulate.images import candidate_images, mirror_maps
+from mapping.simulate.images_trace import trace_images
 
 LX, LY = 5.0, 4.0
 SHOEBOX = np.array(

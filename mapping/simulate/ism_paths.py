@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from mapping.signal import SonarConfig
 from mapping.simulate.base import SceneLike
-from mapping.simulate.images import ImageSet, TraceResult, candidate_images, trace_images
+from mapping.simulate.images import ImageSet, candidate_images
+from mapping.simulate.images_trace import TraceResult, trace_images
 from mapping.simulate.ism_config import IsmConfig, range_limit_m, spreading_power
 
 FloatArray = NDArray[np.float64]

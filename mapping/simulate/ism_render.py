@@ -24,7 +24,8 @@ from mapping.signal import (
 )
 from mapping.simulate._ism_kernels import _render
 from mapping.simulate.base import PathTable, TrajectoryLike
-from mapping.simulate.images import ImageSet, TraceResult
+from mapping.simulate.images import ImageSet
+from mapping.simulate.images_trace import TraceResult
 from mapping.simulate.ism_config import IsmConfig, _table, signal_period, spreading_power
 from mapping.simulate.ism_delay import retarded_delay, retarded_delay_scalar
 from mapping.simulate.ism_paths import PreparedScene, traced_gains
