@@ -346,7 +346,11 @@ def plot(results: dict[str, Any], path: Path) -> None:
                      label=name)
     axes[2].axhline(3.0, color="grey", ls="--", lw=0.8, label="honest (3 dof)")
     axes[2].axvline(200.0, color="k", ls=":", lw=0.8, label="default beta")
-    axes[2].set(xscale="log", yscale="log", xlabel="sensor sharpness beta",
+    betas = [r["beta"] for r in sweep]
+    axes[2].set_xscale("log")
+    axes[2].set_xticks(betas, [f"{b:g}" for b in betas])
+    axes[2].minorticks_off()
+    axes[2].set(yscale="log", xlabel="sensor sharpness beta",
                 ylabel="mean NEES of the best mode (tracked, mod symmetry)",
                 title="covariance honesty, 1000 particles")
     for ax in axes:
