@@ -134,8 +134,13 @@ def temper_to_ess(log_w: FloatArray, ll: FloatArray, min_ess: float,
     the luckiest particle. Applying only the share ``s`` of the block's log-likelihood
     (likelihood tempering, as in progressive correction, Oudjane and Musso 2000) keeps
     ``min_ess`` particles; the rest of that block's information is not used, so the
-    reported covariance is wider than the full update's, never narrower. The ESS is
-    non-increasing in ``s`` for a fixed ``ll``, so bisection finds it.
+    reported covariance is wider than the full update's, never narrower.
+
+    With equal prior weights (as after resampling) the ESS is non-increasing in ``s``
+    (``d log ESS / ds = 2 (E_w[ll] - E_w2[ll]) <= 0``), so bisection finds the largest such
+    scale; with unequal prior weights it finds a scale at which the ESS crosses
+    ``min_ess``. If even ``s -> 0`` leaves fewer than ``min_ess`` (the prior itself is
+    degenerate) the smallest scale (1e-6) is returned.
     """
     def ess(s: float) -> float:
         a = log_w + s * ll
