@@ -20,7 +20,8 @@ from numpy.typing import NDArray
 from localization.estimate import track_metrics
 from localization.particle_filter import FilterConfig, ParticleFilter, run_filter
 from localization.sensor import SensorTables
-from mapping.heatmap import HeatMap
+from mapping.heatmap import HeatMap, heatmap_of_run
+from mapping.runfile import Run
 
 FloatArray = NDArray[np.float64]
 
@@ -47,6 +48,21 @@ class CalibrationRun:
     t_s: FloatArray
     block_s: float
     truth: FloatArray
+
+    @classmethod
+    def from_run(cls, run: Run) -> CalibrationRun:
+        """Heat maps of every block of a tracked run (:func:`mapping.heatmap.heatmap_of_run`),
+        its odometry and its tracked poses as the truth.
+
+        Raises
+        ------
+        ValueError
+            The run has no tracked pose in its first block (the filter starts there).
+        """
+        if not np.all(np.isfinite(run.pose[0])):
+            raise ValueError("a calibration run needs a tracked pose in its first block")
+        return cls(tuple(heatmap_of_run(run, k) for k in range(run.n_blocks)),
+                   run.speed_m_s, run.yaw_rate_rad_s, run.t_s, run.config.block_s, run.pose)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ registers its parser and sets ``func`` to a ``_cmd_<name>(args) -> int`` handler
 The subcommands live by topic in ``service/cli_<group>.py``: ``cli_runs`` (signal, scenes,
 import-run, export-run, and the shared ``resolve_scene`` / ``resolve_path``),
 ``cli_simulate``, ``cli_maps`` (heatmap, build-map, evaluate-map), ``cli_localize``
-(localize, posterior) and ``cli_service`` (serve, demo-api, demo). This module holds the
+(localize, calibrate, posterior) and ``cli_service`` (serve, demo-api, demo). This module holds the
 ``_COMMANDS`` registry (in ``--help`` order), the parser and the entry point.
 """
 
@@ -17,7 +17,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from service.cli_localize import _add_localize, _add_posterior
+from service.cli_localize import _add_calibrate, _add_localize, _add_posterior
 from service.cli_maps import _add_build_map, _add_evaluate_map, _add_heatmap
 from service.cli_runs import (
     _add_export_run,
@@ -47,6 +47,7 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_build_map,
     _add_evaluate_map,
     _add_localize,
+    _add_calibrate,
 ]
 
 

@@ -30,6 +30,8 @@ def _add_localize(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", choices=("correlation", "range"), default="correlation",
                    help="sensor model")
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
+    p.add_argument("--beta", type=float, default=None,
+                   help="sensor sharpness (default 200; `omnisonar calibrate` picks one per map)")
     p.add_argument("--out", help="write the track as CSV")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
     p.set_defaults(func=_cmd_localize)
@@ -51,7 +53,10 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     if args.particles < 1:
         raise ValueError(f"--particles must be >= 1, got {args.particles}")
     wall_map, run = read_map(args.map), read_run(args.run)
-    tables = build_tables(wall_map, SensorConfig(model=args.model))
+    sensor = SensorConfig(model=args.model)
+    if args.beta is not None:
+        sensor = dataclasses.replace(sensor, beta=args.beta)   # validated by SensorConfig
+    tables = build_tables(wall_map, sensor)
     tracked = np.asarray(np.isfinite(run.pose).all(axis=1), dtype=bool)
     if args.init == "tracked" and not tracked[0]:
         raise ValueError("--init tracked needs a tracked pose in the run's first block")
@@ -113,6 +118,57 @@ def _cmd_localize(args: argparse.Namespace) -> int:
               f"{float(summary['share_within_tol']) * 100:.0f} % of blocks")
     if args.out:
         print(f"wrote {args.out}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+# ---- calibrate (issue 6: the sensor sharpness that makes the covariance honest) -----------
+def _add_calibrate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate",
+                       help="pick the sensor sharpness beta of a map by NEES on tracked runs")
+    p.add_argument("runs", nargs="+", metavar="RUN.npz",
+                   help="tracked runs on the map (held out from its mapping runs)")
+    p.add_argument("--map", required=True, metavar="MAP.npz", help="wall map (omnisonar-map-1)")
+    p.add_argument("--betas", default="50,100,200,400",
+                   help="comma-separated candidates (default 50,100,200,400)")
+    p.add_argument("--particles", type=int, default=1000, help="particle count per filter run")
+    p.add_argument("--seeds", type=int, default=2, help="filter runs per run and candidate")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=_cmd_calibrate)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    import json
+
+    from localization.calibration import CalibrationRun, calibrate_beta
+    from localization.particle_filter import FilterConfig
+    from localization.sensor import SensorConfig, build_tables
+    from mapping.mapfile import read_map
+    from mapping.runfile import read_run
+
+    try:
+        betas = [float(b) for b in args.betas.split(",") if b.strip()]
+    except ValueError:
+        raise ValueError(f"--betas must be comma-separated numbers, got {args.betas!r}") from None
+    config = FilterConfig(n_particles=args.particles)          # validates --particles
+    tables = build_tables(read_map(args.map), SensorConfig())
+    runs = []
+    for path in args.runs:
+        try:
+            runs.append(CalibrationRun.from_run(read_run(path)))
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+    cal = calibrate_beta(tables, runs, betas, config, np.random.default_rng(args.seed),
+                         n_seeds=args.seeds)
+    if args.json:
+        print(json.dumps({"beta": cal.beta, "betas": list(cal.betas),
+                          "nees_mean": list(cal.nees_mean), "lost_runs": list(cal.lost_runs)}))
+        return 0
+    print("   beta  mean NEES  lost runs")
+    for b, q, lost in zip(cal.betas, cal.nees_mean, cal.lost_runs, strict=True):
+        print(f"{b:7.1f}  {q:9.2f}  {lost:9d}")
+    print(f"beta = {cal.beta:.1f} (mean NEES 3 = honest covariance); use it with "
+          f"`omnisonar localize --beta {cal.beta:.0f}`")
     return 0
 
 

@@ -34,6 +34,7 @@ class FilterSpec:
     seed: int = 0
     initial_pose: tuple[float, float, float] | None = None
     initial_covariance: tuple[tuple[float, ...], ...] | None = None
+    beta: float | None = None       # sensor sharpness; None: the server's default
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -47,6 +48,7 @@ class FilterSpec:
             initial_pose=None if pose is None else (float(pose[0]), float(pose[1]),
                                                      float(pose[2])),
             initial_covariance=None if cov is None else tuple(tuple(map(float, r)) for r in cov),
+            beta=None if d.get("beta") is None else float(d["beta"]),
         )
 
 

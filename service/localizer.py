@@ -7,6 +7,7 @@ all sessions on that map (read-only), rebuilt when the map file changes.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from typing import Any
 
@@ -142,8 +143,18 @@ class LocalizationFactory:
                 self._tables[map_id] = hit
             return hit[1], hit[2]
 
-    def create(self, map_id: str, spec: FilterSpec) -> PFTracker | GridTracker:
+    def _session_tables(self, map_id: str, spec: FilterSpec
+                        ) -> tuple[SensorTables, SonarConfig]:
+        """The map's tables, with the session's own sharpness if it asked for one (beta does
+        not enter the tables, so this is a cheap copy of the config only)."""
         tables, config = self.tables(map_id)
+        if spec.beta is not None:
+            sensor = dataclasses.replace(tables.config, beta=float(spec.beta))
+            tables = dataclasses.replace(tables, config=sensor)
+        return tables, config
+
+    def create(self, map_id: str, spec: FilterSpec) -> PFTracker | GridTracker:
+        tables, config = self._session_tables(map_id, spec)
         pose = None if spec.initial_pose is None else np.asarray(spec.initial_pose)
         cov = None if spec.initial_covariance is None else np.asarray(spec.initial_covariance)
         if spec.kind == "grid":
@@ -165,7 +176,7 @@ class LocalizationFactory:
 
     def restore(self, map_id: str, spec: FilterSpec,
                 state: dict[str, Any]) -> PFTracker | GridTracker:
-        tables, config = self.tables(map_id)
+        tables, config = self._session_tables(map_id, spec)
         if spec.kind == "grid":
             return GridTracker(GridFilter.from_state_dict(state, tables), tables, config)
         return PFTracker(ParticleFilter.from_state_dict(state, tables), tables, config)

@@ -123,6 +123,9 @@ class SessionCreate(_Strict):
         None, description="3x3 covariance of (x, y, yaw) in m^2, m*rad, rad^2"
     )
     global_: bool = Field(False, alias="global", description="uniform over the mapped region")
+    beta: float | None = Field(
+        None, gt=0, le=100_000, description="sensor sharpness for this session (default: the "
+        "server's, 200); `omnisonar calibrate` picks an honest one per map")
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
@@ -197,6 +200,8 @@ class SessionInfo(BaseModel):
     filter: Literal["pf", "grid"]
     particles: int
     seed: int
+    beta: float | None = Field(None, description="sensor sharpness asked for at creation "
+                               "(null: the server's default)")
     created_at: float
     last_active_at: float
     expires_in_s: float

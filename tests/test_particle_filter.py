@@ -467,16 +467,12 @@ def test_calibrate_beta_transfers_to_held_out_run(
     from localization.calibration import CalibrationRun, calibrate_beta
     from localization.estimate import track_metrics
     from localization.particle_filter import run_filter
-    from mapping.heatmap import heatmap_of_run
     from mapping.path import builtin_path
     from mapping.scene import builtin_scene
     from mapping.signal import SonarConfig
     from mapping.simulate import IsmConfig, simulate_run
 
-    def calibration_run(run: Any) -> CalibrationRun:
-        return CalibrationRun(tuple(heatmap_of_run(run, k) for k in range(run.n_blocks)),
-                              run.speed_m_s, run.yaw_rate_rad_s, run.t_s, run.config.block_s,
-                              run.pose)
+    calibration_run = CalibrationRun.from_run
 
     wall_map, held = simulated
     tables = build_tables(wall_map, SensorConfig())
@@ -608,3 +604,40 @@ def test_unconverged_floor_follows_convergence(tables: SensorTables,
         FilterConfig(min_ess_fraction=1.0)
     with pytest.raises(ValueError, match="inject_threshold_rho"):
         FilterConfig(inject_threshold_rho=-0.1)
+
+
+@pytest.mark.slow
+def test_cli_calibrate_and_localize_with_beta(simulated: tuple[Any, Any], tmp_path: Any,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """``omnisonar calibrate`` on a tracked run prints the NEES per candidate and the picked
+    beta (JSON), ``localize --beta`` uses it; bad input exits 2 naming the problem."""
+    import json
+
+    from mapping.mapfile import write_map
+    from mapping.runfile import write_run
+    from service.cli import main
+
+    wall_map, held = simulated
+    write_map(tmp_path / "G.npz", wall_map)
+    write_run(tmp_path / "run.npz", held)
+    rc = main(["calibrate", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+               "--betas", "100,200", "--particles", "300", "--seeds", "1", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["betas"] == [100.0, 200.0] and len(out["nees_mean"]) == 2
+    assert 100.0 <= out["beta"] <= 200.0
+    rc = main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+               "--init", "tracked", "--particles", "500", "--beta", str(out["beta"]),
+               "--json"])
+    assert rc == 0 and json.loads(capsys.readouterr().out)["position_rmse_m"] <= 0.03
+    assert main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+                 "--beta", "-1"]) == 2
+    assert "beta" in capsys.readouterr().err
+    assert main(["calibrate", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
+                 "--betas", "a,b"]) == 2
+    assert "--betas" in capsys.readouterr().err
+    untracked = dataclasses.replace(held, pose=np.full_like(held.pose, np.nan))
+    write_run(tmp_path / "untracked.npz", untracked)
+    assert main(["calibrate", "--map", str(tmp_path / "G.npz"),
+                 str(tmp_path / "untracked.npz")]) == 2
+    assert "untracked.npz" in capsys.readouterr().err

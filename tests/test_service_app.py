@@ -181,6 +181,8 @@ def test_global_session_spreads_over_map(client: TestClient) -> None:
     ({"initial_covariance": [[1, 2, 0], [0, 1, 0], [0, 0, 1]]}, "initial_covariance"),
     ({"initial_covariance": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "initial_covariance"),
     ({"unknown": 1}, "unknown"),
+    ({"beta": 0}, "beta"),
+    ({"beta": 1e6}, "beta"),
 ])
 def test_session_create_rejects(client: TestClient, body: dict[str, Any], field: str) -> None:
     r = client.post("/sessions", json={**TRACKED, **body})
@@ -359,6 +361,33 @@ def test_restart_reloads_sessions(settings: Settings) -> None:
         assert after["last_seq"] == 1 and after["estimate"] == before["estimate"]
         assert post_raw(c, sid, 1, noise_block(1).tobytes()).status_code == 409
         assert post_raw(c, sid, 2, noise_block(2).tobytes()).status_code == 200
+
+
+def test_session_beta_applies_and_survives_restart(settings: Settings) -> None:
+    """A session may ask for its own sensor sharpness (e.g. from ``omnisonar calibrate``):
+    the info reports it, a sharper beta gives a tighter best-mode covariance on the same
+    blocks and seed, and a restarted server restores the session with that beta."""
+    blocks = [noise_block(k) for k in range(3)]
+
+    def run(c: TestClient, beta: float | None) -> tuple[str, Any]:
+        sid = new_session(c, **({} if beta is None else {"beta": beta}))
+        info = c.get(f"/sessions/{sid}").json()
+        assert info["beta"] == beta
+        for k, b in enumerate(blocks):
+            r = post_raw(c, sid, k, b.tobytes())
+            assert r.status_code == 200, r.text
+        return sid, np.asarray(r.json()["covariance"])
+
+    app = create_app(settings)
+    with TestClient(app) as c:
+        sid, soft = run(c, 20.0)
+        _, sharp = run(c, 2000.0)
+        assert np.trace(sharp[:2, :2]) < np.trace(soft[:2, :2])
+        before = c.get(f"/sessions/{sid}").json()
+    with TestClient(create_app(settings)) as c:
+        after = c.get(f"/sessions/{sid}").json()
+        assert after["beta"] == 20.0 and after["estimate"] == before["estimate"]
+        assert post_raw(c, sid, 3, noise_block(3).tobytes()).status_code == 200
 
 
 def test_openapi_documents_both_block_bodies(client: TestClient) -> None:

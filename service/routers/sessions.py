@@ -71,7 +71,8 @@ def estimate_model(session_id: str, seq: int | None, est: EstimateOut) -> Estima
 def session_info(store: SessionStore, s: Session) -> SessionInfo:
     return SessionInfo(
         id=s.id, map_id=s.map_id, filter=s.spec.kind,  # type: ignore[arg-type]
-        particles=s.spec.particles, seed=s.spec.seed, created_at=s.created_at,
+        particles=s.spec.particles, seed=s.spec.seed, beta=s.spec.beta,
+        created_at=s.created_at,
         last_active_at=s.last_active_at, expires_in_s=store.expires_in_s(s),
         last_seq=s.last_seq, n_updates=s.n_updates,
         estimate=None if s.estimate is None else estimate_model(s.id, s.last_seq, s.estimate),
@@ -98,7 +99,8 @@ def create_session(
     if pose is not None and cov is None:
         cov = [[0.1**2, 0, 0], [0, 0.1**2, 0], [0, 0, math.radians(10) ** 2]]
     spec = FilterSpec(kind=req.filter, particles=req.particles, seed=seed, initial_pose=pose,
-                      initial_covariance=None if cov is None else tuple(tuple(r) for r in cov))
+                      initial_covariance=None if cov is None else tuple(tuple(r) for r in cov),
+                      beta=req.beta)
     try:
         s = store.create(req.map_id, spec)
     except ValueError as exc:  # the filter refused the parameters (e.g. pose off the map)
@@ -121,7 +123,8 @@ def _require_map(maps: MapStore, map_id: str) -> None:
 
 def _field_of(exc: ValueError) -> str | None:
     text = str(exc)
-    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id", "filter"):
+    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id", "filter",
+                 "beta"):
         if name in text:
             return name
     return None
