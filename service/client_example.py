@@ -24,9 +24,12 @@ from mapping.runfile import Run, read_run
 
 def open_session(http: httpx.Client, map_id: str, particles: int, seed: int,
                  initial_pose: tuple[float, float, float] | None,
-                 wait_s: float = 300.0) -> str:
-    """``POST /sessions`` (retrying while the default map is still being built)."""
+                 wait_s: float = 300.0, beta: float | None = None) -> str:
+    """``POST /sessions`` (retrying while the default map is still being built); ``beta``:
+    the map's calibrated sensor sharpness, if any (``omnisonar calibrate``)."""
     body: dict[str, Any] = {"map_id": map_id, "particles": particles, "seed": seed}
+    if beta is not None:
+        body["beta"] = beta
     if initial_pose is None:
         body["global"] = True
     else:
@@ -45,10 +48,10 @@ def open_session(http: httpx.Client, map_id: str, particles: int, seed: int,
 
 def stream_run(base_url: str, run: Run, map_id: str = "default", particles: int = 2000,
                seed: int = 0, initial_pose: tuple[float, float, float] | None = None,
-               ) -> Iterator[tuple[int, dict[str, Any], float]]:
+               beta: float | None = None) -> Iterator[tuple[int, dict[str, Any], float]]:
     """Yield ``(block index, estimate JSON, round-trip seconds)`` for every block of ``run``."""
     with httpx.Client(base_url=base_url, timeout=60.0) as http:
-        sid = open_session(http, map_id, particles, seed, initial_pose)
+        sid = open_session(http, map_id, particles, seed, initial_pose, beta=beta)
         try:
             for k in range(run.n_blocks):
                 t0 = time.perf_counter()

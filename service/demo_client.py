@@ -1,8 +1,11 @@
 """The main job through the HTTP API (``omnisonar demo-api``).
 
 Start the service as a child process, wait for its default map (the paper scene, built on
-first start and cached), stream a held-out simulated run of the same scene along another
-path with another noise seed, print the pose track against the truth, stop the service.
+first start and cached), calibrate the map's sensor sharpness on one tracked drive
+(:func:`localization.calibration.calibrate_beta`, as ``omnisonar calibrate`` does), stream a
+held-out simulated run of the same scene along another path with another noise seed in a
+session with that beta, print the pose track against the truth (with the NEES of the
+reported covariance), stop the service.
 """
 
 from __future__ import annotations
@@ -22,6 +25,26 @@ from service.server import ServerProcess
 
 HELD_OUT_PATH = "paper-a"
 HELD_OUT_SEED = 7
+#: The calibration drive: the same route as the held-out run, another noise seed.
+CALIBRATION_SEED = 8
+CALIBRATION_BETAS = (50.0, 100.0, 200.0, 400.0)
+
+
+def calibrate_map(map_path: Path, n_blocks: int | None) -> float:
+    """The sharpness whose NEES is 3 on a simulated tracked drive on the map at ``map_path``."""
+    from localization.calibration import CalibrationRun, calibrate_beta
+    from localization.particle_filter import FilterConfig
+    from localization.sensor import SensorConfig, build_tables
+    from mapping.mapfile import read_map
+
+    drive = simulate_default_run(HELD_OUT_PATH, seed=CALIBRATION_SEED, n_blocks=n_blocks)
+    tables = build_tables(read_map(map_path), SensorConfig())
+    cal = calibrate_beta(tables, [CalibrationRun.from_run(drive)], CALIBRATION_BETAS,
+                         FilterConfig(n_particles=1000), np.random.default_rng(0), n_seeds=1)
+    table = ", ".join(f"{b:g}: {q:.1f}" for b, q in zip(cal.betas, cal.nees_mean, strict=True))
+    print(f"calibration drive ({HELD_OUT_PATH}, seed {CALIBRATION_SEED}): mean NEES per beta "
+          f"{table} -> beta {cal.beta:.0f}")
+    return cal.beta
 
 
 def wait_for_map(url: str, map_id: str, timeout_s: float = 600.0) -> dict[str, Any]:
@@ -56,6 +79,7 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
         png.raise_for_status()
         (work_dir / "map.png").write_bytes(png.content)
         print(f"wrote {work_dir / 'map.png'} (GET /maps/default/image.png)")
+        beta = calibrate_map(work_dir / "maps" / "default.npz", n_blocks)
         run = simulate_default_run(HELD_OUT_PATH, seed=HELD_OUT_SEED, n_blocks=n_blocks)
         print(f"held-out run: path {HELD_OUT_PATH}, noise seed {HELD_OUT_SEED}, "
               f"{run.n_blocks} blocks; init {'global' if global_init else 'tracked'}")
@@ -64,7 +88,7 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
               "  conv  ms")
         rows = []
         for k, est, rtt in stream_run(srv.url, run, "default", particles, seed,
-                                      start):  # type: ignore[arg-type]
+                                      start, beta):  # type: ignore[arg-type]
             e_m, e_deg = pose_error(est, run.pose[k])
             t, p = run.pose[k], est["pose"]
             print(f"{k:4d} {t[0]:8.3f} {t[1]:7.3f} {math.degrees(t[2]):9.1f} | "
@@ -72,15 +96,24 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
                   f"{e_m:6.3f} {e_deg:8.2f}  {'yes' if est['converged'] else ' no'} "
                   f"{1e3 * rtt:4.0f}", flush=True)
             rows.append({"seq": k, "truth": t.tolist(), "estimate": est, "err_m": e_m,
-                         "err_deg": e_deg, "rtt_s": rtt})
-    summary = summarize(rows)
+                         "err_deg": e_deg, "rtt_s": rtt, "nees": nees(est, run.pose[k])})
+    summary = {**summarize(rows), "beta": beta}
     (work_dir / "track.json").write_text(json.dumps({"summary": summary, "track": rows}))
     print(json.dumps(summary, indent=1))
     return summary
 
 
+def nees(est: dict[str, Any], truth: np.ndarray) -> float:
+    """``e^T C^-1 e`` of an estimate's best-mode covariance against the truth (3 dof)."""
+    p = est["pose"]
+    e = np.array([float(truth[0]) - p["x"], float(truth[1]) - p["y"],
+                  math.remainder(float(truth[2]) - p["yaw"], 2 * math.pi)])
+    cov = np.asarray(est["covariance"], dtype=np.float64)
+    return float(e @ np.linalg.solve(cov + 1e-12 * np.eye(3), e))
+
+
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """RMSE after the first converged block, share within 10 cm, latency."""
+    """RMSE and mean NEES after the first converged block, share within 10 cm, latency."""
     conv = [i for i, r in enumerate(rows) if r["estimate"]["converged"]]
     after = rows[conv[0]:] if conv else []
     e_m = np.array([r["err_m"] for r in after])
@@ -93,5 +126,6 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "heading_rmse_deg": float(np.sqrt(np.mean(e_deg**2))) if e_deg.size else None,
         "share_within_10cm": float(np.mean([r["err_m"] <= 0.10 for r in rows])),
         "final_err_m": rows[-1]["err_m"] if rows else None,
+        "nees_mean": float(np.mean([r["nees"] for r in after])) if after else None,
         "latency_p50_ms": float(1e3 * np.median(rtt)) if rtt.size else None,
     }

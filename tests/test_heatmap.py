@@ -350,3 +350,11 @@ def test_cli_demo_prints_range_and_angle_against_truth(
     text = capsys.readouterr().out
     assert "detected: range" in text and "truth:" in text
     assert (out / "heatmap.png").stat().st_size > 0
+    # part 2, through the API: the map's beta calibrated on a drive, then the held-out run
+    import json
+
+    assert "calibration drive" in text and "-> beta" in text
+    summary = json.loads((out / "api" / "track.json").read_text())["summary"]
+    assert 50.0 <= summary["beta"] <= 400.0
+    assert summary["position_rmse_m"] <= 0.05 and summary["share_within_10cm"] == 1.0
+    assert 0.0 < summary["nees_mean"] < 30.0
