@@ -26,7 +26,7 @@ demo: $(STAMP)
 	$(BIN)/python -m service demo --out out/demo
 
 bench: $(STAMP)
-	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
+	@for f in benchmarks/[a-z]*.py; do m=$$(basename $$f .py); echo "== benchmarks.$$m"; $(BIN)/python -m benchmarks.$$m || exit 1; done
 
 serve: $(STAMP)
 	$(BIN)/python -m service serve

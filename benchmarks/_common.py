@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.runfile import Run, read_run, write_run
+from mapping.files import read_run, write_run
+from mapping.run import Run
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

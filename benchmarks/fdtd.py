@@ -30,29 +30,26 @@ from pathlib import Path
 from typing import Any
 
 # a script run from benchmarks/ must not shadow the packages: import from the repository root
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
-sys.path.insert(0, str(_HERE.parent))
+import matplotlib
+import matplotlib.pyplot as plt
+import numba
+import numpy as np
+from numba import njit, prange
 
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numba  # noqa: E402
-import numpy as np  # noqa: E402
-from numba import njit, prange  # noqa: E402
-
-from mapping.path import builtin_path  # noqa: E402
-from mapping.scene import builtin_scene  # noqa: E402
-from mapping.signal import SonarConfig  # noqa: E402
-from mapping.simulate.fdtd import (  # noqa: E402
+from mapping.path import builtin_path
+from mapping.scene import builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate.fdtd import (
+    STEPS_PER_SWEEP,
     FdtdConfig,
     FdtdGrid,
     FdtdSolver,
     new_state,
     setup_for_scene,
 )
-from mapping.simulate.fdtd_solver import STEPS_PER_SWEEP  # noqa: E402
+
+_HERE = Path(__file__).resolve().parent
+matplotlib.use("Agg")
 
 OUT = Path(__file__).resolve().parent / "results"
 C = 340.0
@@ -273,8 +270,9 @@ def compare_engines(grid_steps_m: tuple[float, ...] = (0.02, 0.014, 0.01)) -> di
     image-source path table) and its angle to the velocity.
     """
     from mapping.heatmap import doppler_heatmap, find_peak
-    from mapping.simulate import IsmConfig, iter_blocks
+    from mapping.simulate import iter_blocks
     from mapping.simulate.fdtd import simulate_fdtd
+    from mapping.simulate.ism import IsmConfig
 
     scene, traj, sonar, v = _one_wall()
     def ism_block() -> Any:

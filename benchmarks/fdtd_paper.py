@@ -38,30 +38,18 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 import warnings
 from pathlib import Path
 from typing import Any
 
 # a script run from benchmarks/ must not shadow the packages: import from the repository root
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
-sys.path.insert(0, str(_HERE.parent))
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
 
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-from mapping.heatmap import HeatMap, find_peak  # noqa: E402
-from mapping.path import builtin_path  # noqa: E402
-from mapping.scene import Scene, Wall, builtin_scene  # noqa: E402
-from mapping.signal import SonarConfig  # noqa: E402
-from mapping.simulate.fdtd import FdtdConfig, injected_band  # noqa: E402
-from mapping.simulate.fdtd_compare import (  # noqa: E402
+from mapping.compare import (
     BlockComparison,
     EdgePath,
     compare_block,
@@ -74,6 +62,14 @@ from mapping.simulate.fdtd_compare import (  # noqa: E402
     specular_path,
     window_peak,
 )
+from mapping.heatmap import HeatMap, find_peak
+from mapping.path import builtin_path
+from mapping.scene import Scene, Wall, builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate.fdtd import FdtdConfig, injected_band
+
+_HERE = Path(__file__).resolve().parent
+matplotlib.use("Agg")
 
 OUT = Path(__file__).resolve().parent / "results"
 C = 340.0

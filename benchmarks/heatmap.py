@@ -11,7 +11,7 @@ Measured in one process on the same block (Table 1: B = 40,920 samples, 30 direc
 
 Wall-clock medians and CPU-time medians are both recorded (the machine is shared; CPU time is
 less sensitive to other load) along with the load average. Writes
-``benchmarks/results/heatmap.json`` and ``heatmap.png``. Run: ``python benchmarks/heatmap.py``.
+``benchmarks/results/heatmap.json`` and ``heatmap.png``. Run: ``python -m benchmarks.heatmap``.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import json
 import math
 import os
 import platform
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,23 +29,15 @@ import matplotlib
 import numba
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import scipy.fft  # noqa: E402
-import scipy.signal  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import scipy.fft
+import scipy.signal
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mapping.heatmap import doppler_heatmap, doppler_ratios, required_margin  # noqa: E402
-from mapping.runfile import Run  # noqa: E402
-from mapping.signal import SonarConfig, tx_period  # noqa: E402
-from mapping.synthetic import (  # noqa: E402
-    Wall,
-    echo_samples,
-    run_motion,
-    run_target,
-    synthetic_run,
-)
+from mapping.heatmap import doppler_heatmap, doppler_ratios, required_margin
+from mapping.run import Run
+from mapping.signal import SonarConfig, tx_period
+from mapping.synthetic import Wall, echo_samples, run_motion, run_target, synthetic_run
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SPEED = 0.1
@@ -163,7 +154,7 @@ def main() -> int:
     result: dict[str, Any] = {
         "what": "Doppler heat map per block, Table 1 (B=40920, 30 directions), 0.1 m/s, "
                 "wall 2 m at 35 deg; errors are max |H - H_exact| / max H_exact",
-        "command": "python benchmarks/heatmap.py",
+        "command": "python -m benchmarks.heatmap",
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "numba_threads": n_threads,
                     "numba_threading_layer": numba.threading_layer(),

@@ -32,31 +32,24 @@ import dataclasses
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from localization.calibration import CalibrationRun, calibrate_beta
+from localization.estimate import track_metrics
+from localization.grid_filter import GridFilter
+from localization.particle_filter import FilterConfig, ParticleFilter, Steppable, block_odometry
+from localization.sensor import Model, SensorConfig, SensorTables, build_tables
+from mapping.files import read_map, read_run
+from mapping.heatmap import HeatMap, heatmap_of_run
+from mapping.run import Run
+from mapping.wallmap import WallMap
+from service.cli import main as cli
 
-from localization.calibration import CalibrationRun, calibrate_beta  # noqa: E402
-from localization.estimate import track_metrics  # noqa: E402
-from localization.grid_filter import GridFilter  # noqa: E402
-from localization.particle_filter import (  # noqa: E402
-    FilterConfig,
-    ParticleFilter,
-    Steppable,
-    block_odometry,
-)
-from localization.sensor import Model, SensorConfig, SensorTables, build_tables  # noqa: E402
-from mapping.heatmap import HeatMap, heatmap_of_run  # noqa: E402
-from mapping.mapfile import read_map  # noqa: E402
-from mapping.runfile import Run, read_run  # noqa: E402
-from mapping.wallmap import WallMap  # noqa: E402
-from service.cli import main as cli  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "benchmarks" / "results"
 CACHE = ROOT / "out" / "localization_bench"

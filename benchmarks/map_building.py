@@ -15,7 +15,7 @@ cached in ``out/bench_runs/``; simulation time is never counted. Measured in one
 
 Wall-clock medians and CPU times are recorded with the load average (the machine is shared).
 Writes ``benchmarks/results/map_building.json`` and ``map_building.png``. Run:
-``python benchmarks/map_building.py``.
+``python -m benchmarks.map_building``.
 """
 
 from __future__ import annotations
@@ -24,35 +24,21 @@ import dataclasses
 import json
 import os
 import platform
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._common import RESULTS, simulated_run  # noqa: E402
-from mapping.build import (  # noqa: E402
-    BuildParams,
-    RunSource,
-    build_map,
-    process_pool,
-    run_heatmaps,
-)
-from mapping.grid import GridParams, accumulate, backproject_numpy, map_extent  # noqa: E402
-from mapping.reconstruct import (  # noqa: E402
-    InverseParams,
-    observations_from_heatmaps,
-    reconstruct_inverse,
-)
-from mapping.runfile import Run  # noqa: E402
+from benchmarks._common import RESULTS, simulated_run
+from mapping.build import BuildParams, RunSource, build_map, process_pool, run_heatmaps
+from mapping.grid import GridParams, accumulate, backproject_numpy, map_extent
+from mapping.reconstruct import InverseParams, observations_from_heatmaps, reconstruct_inverse
+from mapping.run import Run
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:

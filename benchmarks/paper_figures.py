@@ -11,39 +11,35 @@ Writes ``benchmarks/results/paper_fig5.png``, ``paper_fig6.png``, ``paper_fig7.p
 ``paper_extra.png`` and the quality table ``paper_figures.json`` (precision / recall / Chamfer at
 strong-cell thresholds 0.25, 0.5, 0.75 of the 99th percentile of G > 0, ghost energy; see
 :mod:`mapping.quality`). Runs are simulated once and cached in ``out/bench_runs/``.
-Run: ``python benchmarks/paper_figures.py [--extra]``.
+Run: ``python -m benchmarks.paper_figures [--extra]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._common import CACHE, RESULTS, simulated_run  # noqa: E402
-from mapping.build import run_heatmaps  # noqa: E402
-from mapping.grid import GridExtent, GridParams, accumulate, cartesian_heatmap  # noqa: E402
-from mapping.quality import evaluate  # noqa: E402
-from mapping.reconstruct import (  # noqa: E402
+from benchmarks._common import CACHE, RESULTS, simulated_run
+from mapping.build import run_heatmaps
+from mapping.grid import GridExtent, GridParams, accumulate, cartesian_heatmap
+from mapping.quality import evaluate
+from mapping.reconstruct import (
     InverseParams,
     observations_from_heatmaps,
     prune_speckle,
     reconstruct_inverse,
 )
-from mapping.runfile import Run  # noqa: E402
-from mapping.scene import Scene  # noqa: E402
-from mapping.wallmap import WallMap  # noqa: E402
+from mapping.run import Run
+from mapping.scene import Scene
+from mapping.wallmap import WallMap
 
 VIEW = (-1.0, 7.0, -1.0, 6.0)
 BASE = ["path A, M=10", "path B, M=10", "path B, M=4", "path B, M=6", "path B, M=8"]

@@ -15,30 +15,30 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import matplotlib
 
+from mapping.angles import pose_difference, wrap_angle
+
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from localization import posterior as post  # noqa: E402
-from localization.particle_filter import FilterConfig, ParticleFilter  # noqa: E402
-from localization.sensor import SensorConfig, SensorTables, build_tables  # noqa: E402
-from mapping.heatmap import heatmap_of_run  # noqa: E402
-from mapping.path import curve_path, polyline_path, stationary_path  # noqa: E402
-from mapping.runfile import Run  # noqa: E402
-from mapping.scene import builtin_scene  # noqa: E402
-from mapping.signal import SonarConfig  # noqa: E402
-from mapping.simulate import IsmConfig, simulate_run  # noqa: E402
-from mapping.wallmap import WallMap  # noqa: E402
-from service.posterior_plot import write_corner_png  # noqa: E402
+from localization import posterior as post
+from localization.particle_filter import FilterConfig, ParticleFilter
+from localization.sensor import SensorConfig, SensorTables, build_tables
+from mapping.heatmap import heatmap_of_run
+from mapping.path import curve_path, polyline_path, stationary_path
+from mapping.run import Run
+from mapping.scene import builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate import simulate_run
+from mapping.simulate.ism import IsmConfig
+from mapping.wallmap import WallMap
+from service.posterior_plot import write_corner_png
 
 OUT = Path(__file__).resolve().parent / "results"
 ISM = IsmConfig(max_path_m=12.0)
@@ -89,7 +89,7 @@ def local_prior(truth: np.ndarray, half_m: float = 0.6) -> post.PosePrior:
 def summary(res: post.PosteriorResult, truth: np.ndarray, seconds: float) -> dict[str, Any]:
     """Numbers of one posterior: modes, widths, chain health, error of the best mode."""
     best = res.modes[0]
-    err = post._pose_diff(best.mean, truth)
+    err = pose_difference(best.mean, truth)
     return {
         "n_modes": len(res.modes),
         "mode_mass": [round(m.mass, 4) for m in res.modes],
@@ -172,7 +172,7 @@ def main() -> None:
         res, truth, sec = sample(run, tables, 3, None, SETTINGS, 30)
         out["straight_vs_curved"][name] = summary(res, truth, sec)
         out["straight_vs_curved"][name]["turn_deg"] = math.degrees(
-            float(post.wrap_angle(run.pose[-1, 2] - run.pose[0, 2])))
+            float(wrap_angle(run.pose[-1, 2] - run.pose[0, 2])))
         out["pf_calibration"][name] = pf_calibration(run, tables, res, truth, 40)
         print(name, out["straight_vs_curved"][name], out["pf_calibration"][name], flush=True)
         if name == "straight":
@@ -187,7 +187,7 @@ def main() -> None:
         res, truth, sec = sample(run, tab, 3, post.prior_from_tables(tab), GLOBAL, 50)
         s = summary(res, truth, sec)
         s["truth_mode_mass"] = float(sum(m.mass for m in res.modes
-                                         if np.linalg.norm(post._pose_diff(m.mean, truth)[:2])
+                                         if np.linalg.norm(pose_difference(m.mean, truth)[:2])
                                          < 0.15))
         out["symmetry"][name] = s
         print(name, s, flush=True)

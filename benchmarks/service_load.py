@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 import tempfile
 import threading
 import time
@@ -34,24 +33,22 @@ import matplotlib.ticker
 import numpy as np
 
 # a script run from benchmarks/ must not shadow the packages: import from the repository root
+from matplotlib import pyplot as plt
+
+from mapping.files import write_map
+from mapping.run import Run
+from mapping.scene import builtin_scene
+from mapping.signal import SonarConfig
+from mapping.wallmap import WallMap
+from service.builds import simulate_default_run
+from service.engine import BlockInput, FilterSpec
+from service.localizer import LocalizationFactory
+from service.mapstore import MapStore
+from service.server import ServerProcess, rss_bytes
+from service.sessions import Session, write_checkpoint
+
 _HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
-sys.path.insert(0, str(_HERE.parent))
-
 matplotlib.use("Agg")
-from matplotlib import pyplot as plt  # noqa: E402
-
-from mapping.mapfile import write_map  # noqa: E402
-from mapping.runfile import Run  # noqa: E402
-from mapping.scene import builtin_scene  # noqa: E402
-from mapping.signal import SonarConfig  # noqa: E402
-from mapping.wallmap import WallMap  # noqa: E402
-from service.builds import simulate_default_run  # noqa: E402
-from service.engine import BlockInput, FilterSpec  # noqa: E402
-from service.localizer import LocalizationFactory  # noqa: E402
-from service.mapstore import MapStore  # noqa: E402
-from service.server import ServerProcess, rss_bytes  # noqa: E402
-from service.sessions import Session, write_checkpoint  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 PARTICLES = 2000

@@ -17,24 +17,19 @@ from __future__ import annotations
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
-# a script's own folder comes first on sys.path: keep benchmarks/<name>.py from shadowing
-# the packages of the same name
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from mapping.path import builtin_path  # noqa: E402
-from mapping.scene import builtin_scene  # noqa: E402
-from mapping.signal import SonarConfig  # noqa: E402
-from mapping.simulate.ism import (  # noqa: E402
+from mapping.path import builtin_path
+from mapping.scene import builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate.ism import (
     IsmConfig,
     iter_ism_blocks,
     plan_stretch,

@@ -21,7 +21,7 @@ from localization.estimate import track_metrics
 from localization.particle_filter import FilterConfig, ParticleFilter, run_filter
 from localization.sensor import SensorTables
 from mapping.heatmap import HeatMap, heatmap_of_run
-from mapping.runfile import Run
+from mapping.run import Run
 
 FloatArray = NDArray[np.float64]
 

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from localization.motion import wrap_angle
+from mapping.angles import circular_mean, pose_error, wrap_angle
 
 FloatArray = NDArray[np.float64]
 
@@ -101,19 +101,6 @@ class PoseEstimate:
     likelihood_scale: float = 1.0
 
 
-def circular_mean(angles: FloatArray, weights: FloatArray | None = None) -> float:
-    """Weighted circular mean in (-pi, pi]."""
-    w = np.ones_like(angles) if weights is None else weights
-    return float(wrap_angle(math.atan2(float(np.sum(w * np.sin(angles))),
-                                       float(np.sum(w * np.cos(angles))))))
-
-
-def circular_std(angles: FloatArray, weights: FloatArray | None = None) -> float:
-    """Circular standard deviation ``sqrt(-2 ln R)`` (rad) of weighted angles."""
-    w = np.ones_like(angles) if weights is None else weights
-    w = w / w.sum()
-    r = math.hypot(float(np.sum(w * np.sin(angles))), float(np.sum(w * np.cos(angles))))
-    return math.sqrt(-2.0 * math.log(max(r, 1e-300)))
 
 
 def weighted_mean_cov(poses: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -126,11 +113,6 @@ def weighted_mean_cov(poses: FloatArray, weights: FloatArray) -> tuple[FloatArra
     cov = (d * w[:, None]).T @ d
     return mean, 0.5 * (cov + cov.T)
 
-
-def pose_error(estimate: FloatArray, truth: FloatArray) -> tuple[float, float]:
-    """Position error (m) and absolute wrapped heading error (rad) of one pose."""
-    return (float(math.hypot(estimate[0] - truth[0], estimate[1] - truth[1])),
-            float(abs(wrap_angle(estimate[2] - truth[2]))))
 
 
 def nees(estimate: FloatArray, cov: FloatArray, truth: FloatArray) -> float:

@@ -26,13 +26,14 @@ from scipy import ndimage
 
 from localization import motion
 from localization.estimate import ClusterConfig, PoseEstimate, summarize
-from localization.motion import MotionNoise, wrap_angle
+from localization.motion import MotionNoise
 from localization.sensor import (
     SensorTables,
     log_likelihood,
     prepare_measurement,
     score_cells_all_headings,
 )
+from mapping.angles import wrap_angle
 from mapping.heatmap import HeatMap
 
 FloatArray = NDArray[np.float64]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.path import wrap_angle  # noqa: F401  (re-exported: one (-pi, pi] wrap for the project)
+from mapping.angles import wrap_angle
 
 FloatArray = NDArray[np.float64]
 

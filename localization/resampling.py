@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
-from localization import _resampling_kernels as _k
+from localization import _kernels as _k
 
 FloatArray = NDArray[np.float64]
 

@@ -32,7 +32,7 @@ from mapping.reconstruct import (
     observations_from_heatmaps,
     reconstruct_inverse,
 )
-from mapping.runfile import Run
+from mapping.run import Run
 from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap
 

@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.runfile import Run
+from mapping.run import Run
 from mapping.signal import SonarConfig, transmitted_at
 
 FloatArray = NDArray[np.float64]

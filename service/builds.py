@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from mapping.build import METHODS, BuildParams, RunResult, RunSource, build_map
-from mapping.mapfile import file_sha256
+from mapping.files import file_sha256, read_run
 from mapping.path import builtin_path
-from mapping.runfile import Run, read_run
+from mapping.run import Run
 from mapping.scene import builtin_scene
 from mapping.signal import SonarConfig
-from mapping.simulate import IsmConfig, iter_blocks, run_meta
-from mapping.simulate.base import assemble_run
+from mapping.simulate import assemble_run, iter_blocks, run_meta
+from mapping.simulate.ism import IsmConfig
 from mapping.wallmap import WallMap
 from service.jobs import Progress
 from service.mapstore import MapStore

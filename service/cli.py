@@ -17,9 +17,9 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from service.cli_localize import _add_calibrate, _add_localize, _add_posterior
-from service.cli_maps import _add_build_map, _add_evaluate_map, _add_heatmap
-from service.cli_runs import (
+from service.commands.localize import _add_calibrate, _add_localize, _add_posterior
+from service.commands.maps import _add_build_map, _add_evaluate_map, _add_heatmap
+from service.commands.runs import (
     _add_export_run,
     _add_import_run,
     _add_scenes,
@@ -27,8 +27,8 @@ from service.cli_runs import (
     resolve_path,
     resolve_scene,
 )
-from service.cli_service import _add_demo, _add_demo_api, _add_serve
-from service.cli_simulate import _add_simulate
+from service.commands.serve import _add_demo, _add_demo_api, _add_serve
+from service.commands.simulate import _add_simulate
 
 __all__ = ["build_parser", "main", "resolve_path", "resolve_scene"]
 

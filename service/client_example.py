@@ -19,7 +19,8 @@ from typing import Any
 import httpx
 import numpy as np
 
-from mapping.runfile import Run, read_run
+from mapping.files import read_run
+from mapping.run import Run
 
 
 def open_session(http: httpx.Client, map_id: str, particles: int, seed: int,

@@ -35,7 +35,7 @@ def calibrate_map(map_path: Path, n_blocks: int | None) -> float:
     from localization.calibration import CalibrationRun, calibrate_beta
     from localization.particle_filter import FilterConfig
     from localization.sensor import SensorConfig, build_tables
-    from mapping.mapfile import read_map
+    from mapping.files import read_map
 
     drive = simulate_default_run(HELD_OUT_PATH, seed=CALIBRATION_SEED, n_blocks=n_blocks)
     tables = build_tables(read_map(map_path), SensorConfig())

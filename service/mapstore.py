@@ -30,13 +30,13 @@ class MapExists(Exception):
 
 
 def _read_map(path: Path) -> WallMap:
-    from mapping.mapfile import read_map
+    from mapping.files import read_map
 
     return read_map(path)
 
 
 def _write_map(path: Path, wallmap: WallMap) -> None:
-    from mapping.mapfile import write_map
+    from mapping.files import write_map
 
     write_map(path, wallmap)
 

@@ -17,8 +17,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.projections.polar import PolarAxes  # noqa: E402
 
-from mapping.heatmap import HeatMap, find_peak  # noqa: E402
-from mapping.wallmap import WallMap  # noqa: E402
+from mapping.heatmap import HeatMap, find_peak
+from mapping.wallmap import WallMap
 
 
 def write_heatmap_png(

@@ -16,7 +16,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from localization.posterior import PosteriorResult, wrap_angle  # noqa: E402
+from localization.posterior import PosteriorResult
+from mapping.angles import wrap_angle
 
 LABELS = ("x (m)", "y (m)", "heading (deg)")
 

@@ -26,15 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.atomicfile import atomic_savez
-from service.engine import (
-    BlockInput,
-    EstimateOut,
-    FilterSpec,
-    Tracker,
-    TrackerFactory,
-    block_dt_s,
-)
+from mapping.files import atomic_savez
+from service.engine import BlockInput, EstimateOut, FilterSpec, Tracker, TrackerFactory, block_dt_s
 
 SESSION_FORMAT = "omnisonar-session-1"
 

@@ -14,21 +14,14 @@ from typing import Any
 
 import numpy as np
 
-from mapping.runfile import Run
+from mapping.run import Run
 from mapping.signal import SonarConfig
-from mapping.simulate.base import (
-    PathTable,
-    SceneLike,
-    SimBlock,
-    TrajectoryLike,
-    assemble_run,
-)
+from mapping.simulate._base import PathTable, SceneLike, SimBlock, TrajectoryLike, assemble_run
 from mapping.simulate.fdtd import FdtdConfig, iter_fdtd_blocks
 from mapping.simulate.ism import IsmConfig, iter_ism_blocks
 
 __all__ = [
     "ENGINES",
-    "IsmConfig",
     "PathTable",
     "SceneLike",
     "SimBlock",

@@ -1,0 +1,399 @@
+"""Monte Carlo localization on the acoustic wall map (paper Fig. 1(b)).
+
+Pure functions do the work (:func:`init_tracked`, :func:`init_global`, :func:`predict`,
+:func:`weigh`, :func:`resample`, :func:`inject`); :class:`ParticleFilter` is a thin stateful
+object that holds the arrays and calls them in order, one sonar block per :meth:`step`:
+
+1. validate the block and odometry (nothing is mutated before this passes);
+2. predict: sample the odometry motion model (:mod:`localization.motion`);
+3. weigh: add the sensor log-likelihood (:mod:`localization.sensor`), normalize by
+   log-sum-exp, and update the augmented-MCL averages ``w_slow``/``w_fast``
+   (Thrun et al., *Probabilistic Robotics*, Table 8.3);
+4. summarize the weighted set (:mod:`localization.estimate`);
+5. resample systematically when ESS < ``resample_ess_fraction * n``, replacing a share
+   ``max(0, 1 - e^t w_fast / w_slow)`` (threshold t) of particles by fresh poses drawn
+   over the free space (candidates importance-weighted by the current block, i.e. sensor
+   resetting) so a
+   kidnapped robot is found again; optionally adapting the count (KLD sampling, Fox 2003).
+
+The augmented-MCL averages are kept on the *geometric* mean likelihood of the set, i.e.
+exponential averages of the prior-weighted mean log-likelihood ``beta * E[rho - 1]``
+(:func:`weigh`), not on Thrun's arithmetic mean ``E[exp(beta (rho - 1))]``. At the sharp
+beta an honest covariance needs (~100-300), the arithmetic mean of one block is set by its
+single best particle and swings by 10-25 nats from block to block with the number of walls
+in view; an average of such values is pinned to its largest past term, so ``w_fast``
+drifted 0.65 nats per block below ``w_slow`` during ordinary tracking (measured on the
+benchmark's pillar and L-room runs) and injection fired on a well-tracked robot, where
+poses at the room's symmetric images then won. The threshold is set in correlation units
+(``inject_threshold_rho``) so that it does not depend on beta.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import logsumexp
+from scipy.stats import norm
+
+from localization import motion, resampling
+from localization.estimate import PoseEstimate, summarize
+from localization.motion import MotionNoise
+from localization.particle_filter._config import FilterConfig
+from localization.sensor import (
+    Measurement,
+    SensorTables,
+    log_likelihood,
+    pose_log_likelihood,
+    prepare_measurement,
+    score_poses,
+)
+from mapping.angles import wrap_angle
+from mapping.heatmap import HeatMap
+
+FloatArray = NDArray[np.float64]
+STATE_FORMAT = "omnisonar-pf-state-1"
+
+
+# ---- pure functions ----------------------------------------------------------------------
+def init_tracked(pose: FloatArray, cov: FloatArray, n: int,
+                 rng: np.random.Generator) -> FloatArray:
+    """``n`` poses drawn from a Gaussian around ``pose`` (3,) with covariance ``cov`` (3, 3)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose must be 3 finite numbers (x_m, y_m, heading_rad), got {pose}")
+    if cov.shape != (3, 3) or not np.all(np.isfinite(cov)) or not np.allclose(cov, cov.T):
+        raise ValueError("cov must be a finite symmetric 3x3 matrix")
+    if np.linalg.eigvalsh(cov).min() < -1e-12:
+        raise ValueError("cov must be positive semi-definite")
+    out = rng.multivariate_normal(pose, cov, size=n, method="eigh")
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+def init_global(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:
+    """``n`` poses uniform over the free cells of the map, headings uniform."""
+    iy, ix = np.nonzero(tables.free_mask)
+    pick = rng.integers(0, iy.size, size=n)
+    u = rng.random((n, 3))
+    out = np.empty((n, 3))
+    out[:, 0] = tables.origin_m[0] + (ix[pick] + u[:, 0] - 0.5) * tables.resolution_m
+    out[:, 1] = tables.origin_m[1] + (iy[pick] + u[:, 1] - 0.5) * tables.resolution_m
+    out[:, 2] = wrap_angle(-np.pi + 2 * np.pi * u[:, 2])
+    return out
+
+
+def predict(poses: FloatArray, speed_m_s: float, yaw_rate_rad_s: float, dt_s: float,
+            noise: MotionNoise, rng: np.random.Generator) -> FloatArray:
+    """Prediction step: :func:`localization.motion.predict`."""
+    return motion.predict(poses, speed_m_s, yaw_rate_rad_s, dt_s, noise, rng)
+
+
+def weigh(log_w: FloatArray, poses: FloatArray, tables: SensorTables,
+          measurement: Measurement, min_ess_fraction: float = 0.0,
+          z_rand: float | None = None) -> tuple[FloatArray, float, float]:
+    """Measurement update.
+
+    The likelihood is floored relative to the best particle (:func:`log_likelihood` with
+    ``rho_ref`` = the set's best correlation), so one block changes weight ratios by at most
+    ``1 / z_rand`` (``z_rand`` overrides the sensor's floor); tempered by
+    :func:`temper_to_ess` when ``min_ess_fraction`` > 0.
+    Returns the normalized log-weights, the augmented-MCL statistic (the prior-weighted
+    mean log-likelihood ``beta * E[rho - 1]`` of the set, the log of its geometric mean
+    likelihood, see the module docstring; ``-inf`` when no particle is on the map), and
+    the tempering scale applied (1 = the full likelihood).
+    """
+    rho = score_poses(tables, measurement, poses)
+    finite = np.isfinite(rho)
+    ref = float(np.max(rho[finite])) if finite.any() else 1.0
+    cfg = tables.config if z_rand is None else dataclasses.replace(tables.config, z_rand=z_rand)
+    ll = log_likelihood(rho, cfg, ref)
+    scale = temper_to_ess(log_w, ll, min_ess_fraction * log_w.size) if min_ess_fraction else 1.0
+    new, _ = resampling.normalize_log_weights(log_w + scale * ll)
+    if not finite.any():
+        return new, -np.inf, scale
+    prior = np.exp(log_w[finite] - float(logsumexp(log_w[finite])))
+    stat = tables.config.beta * float(np.sum(prior * (rho[finite] - 1.0)))
+    return new, stat, scale
+
+
+def temper_to_ess(log_w: FloatArray, ll: FloatArray, min_ess: float,
+                  iterations: int = 30) -> float:
+    """Largest ``s`` in (0, 1] with ``ESS(log_w + s * ll) >= min_ess`` (1 if the full
+    update keeps it).
+
+    A likelihood much sharper than the particle set's spread (a global start, a wide
+    prior, a symmetric room where two modes share the few particles near their cores)
+    would otherwise leave a handful of particles to carry all the weight, and the split
+    of weight between equally good modes would be decided by which mode happened to hold
+    the luckiest particle. Applying only the share ``s`` of the block's log-likelihood
+    (likelihood tempering, as in progressive correction, Oudjane and Musso 2000) keeps
+    ``min_ess`` particles; the rest of that block's information is not used, so the
+    reported covariance is wider than the full update's, never narrower.
+
+    With equal prior weights (as after resampling) the ESS is non-increasing in ``s``
+    (``d log ESS / ds = 2 (E_w[ll] - E_w2[ll]) <= 0``), so bisection finds the largest such
+    scale; with unequal prior weights it finds a scale at which the ESS crosses
+    ``min_ess``. If even ``s -> 0`` leaves fewer than ``min_ess`` (the prior itself is
+    degenerate) the smallest scale (1e-6) is returned.
+    """
+    def ess(s: float) -> float:
+        a = log_w + s * ll
+        a = a - float(logsumexp(a))
+        return float(1.0 / np.sum(np.exp(2.0 * a)))
+
+    if not np.all(np.isfinite(ll)) or ess(1.0) >= min_ess:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        if ess(mid) >= min_ess:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-6)
+
+
+def resample(poses: FloatArray, log_w: FloatArray, rng: np.random.Generator,
+             n_out: int | None = None) -> tuple[FloatArray, FloatArray]:
+    """Systematic resampling; returns the new poses and uniform log-weights."""
+    idx = resampling.systematic_resample(np.exp(log_w - log_w.max()), rng, n_out)
+    n = idx.shape[0]
+    return poses[idx].copy(), np.full(n, -math.log(n))
+
+
+def inject(poses: FloatArray, n_inject: int, tables: SensorTables,
+           measurement: Measurement | None, candidates: int,
+           rng: np.random.Generator) -> FloatArray:
+    """Replace ``n_inject`` random particles by poses drawn over the free space.
+
+    With a ``measurement``, ``candidates * n_inject`` uniform poses are scored and the
+    injected ones are drawn among them in proportion to their likelihood.
+    """
+    if n_inject <= 0:
+        return poses
+    out = poses.copy()
+    slots = rng.choice(poses.shape[0], size=n_inject, replace=False)
+    if measurement is None or candidates == 1:
+        out[slots] = init_global(tables, n_inject, rng)
+        return out
+    cand = init_global(tables, candidates * n_inject, rng)
+    ll = pose_log_likelihood(tables, measurement, cand, floor=True)
+    pick = resampling.systematic_resample(np.exp(ll - ll.max()), rng, n_inject)
+    out[slots] = cand[rng.permutation(pick)]
+    return out
+
+
+def kld_count(poses: FloatArray, config: FilterConfig) -> int:
+    """Particles needed for KL error ``kld_epsilon`` at confidence ``1 - kld_delta``."""
+    keys = np.stack([np.floor(poses[:, 0] / config.kld_bin_m),
+                     np.floor(poses[:, 1] / config.kld_bin_m),
+                     np.floor((poses[:, 2] + np.pi) / config.kld_bin_rad)], axis=1)
+    k = np.unique(keys, axis=0).shape[0]
+    if k <= 1:
+        return config.n_min
+    z = float(norm.ppf(1 - config.kld_delta))
+    a = 2.0 / (9.0 * (k - 1))
+    n = (k - 1) / (2 * config.kld_epsilon) * (1 - a + math.sqrt(a) * z) ** 3
+    return int(np.clip(math.ceil(n), config.n_min, config.n_max))
+
+
+# ---- the stateful object -------------------------------------------------------------------
+class ParticleFilter:
+    """Particle filter over (x_m, y_m, heading_rad) on one wall map.
+
+    Parameters
+    ----------
+    tables : SensorTables
+        Lookup tables of the map (:func:`localization.sensor.build_tables`); shared, read-only.
+    config : FilterConfig
+    rng : numpy.random.Generator
+        Owned by the filter from now on (its state is part of :meth:`state_dict`).
+    pose, cov : array-like, optional
+        Tracked initialization (3,), (3, 3). Without them the filter starts global.
+    """
+
+    def __init__(self, tables: SensorTables, config: FilterConfig, rng: np.random.Generator,
+                 pose: FloatArray | None = None, cov: FloatArray | None = None) -> None:
+        self.tables = tables
+        self.config = config
+        self.rng = rng
+        self.log_w_slow = -np.inf
+        self.log_w_fast = -np.inf
+        self.n_steps = 0
+        if pose is None:
+            self.reset_global()
+        else:
+            self.reset_tracked(pose, np.diag([0.1**2, 0.1**2, math.radians(10) ** 2])
+                               if cov is None else cov)
+
+    # -- initialization
+    def reset_global(self) -> None:
+        """Uniform over the free space (global localization), ``global_oversample`` times
+        ``n_particles`` until the first resampling."""
+        n = self.config.n_particles * self.config.global_oversample
+        self.poses = init_global(self.tables, n, self.rng)
+        self.log_w = np.full(n, -math.log(n))
+        self.log_w_slow = self.log_w_fast = -np.inf
+        self.converged = False
+
+    def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
+        """Gaussian around a known pose."""
+        n = self.config.n_particles
+        self.poses = init_tracked(pose, cov, n, self.rng)
+        self.log_w = np.full(n, -math.log(n))
+        self.log_w_slow = self.log_w_fast = -np.inf
+        c = np.asarray(cov, dtype=np.float64)
+        cl = self.config.cluster
+        self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
+                              and math.sqrt(max(c[2, 2], 0.0)) <= cl.converged_std_rad)
+
+    @property
+    def n_particles(self) -> int:
+        """Current particle count."""
+        return int(self.poses.shape[0])
+
+    # -- one block
+    def step(self, heat_map: HeatMap | None, speed_m_s: float, yaw_rate_rad_s: float,
+             dt_s: float) -> PoseEstimate:
+        """Advance by one block.
+
+        Parameters
+        ----------
+        heat_map : HeatMap or None
+            The block's heat map; None (a silent or missing block) predicts only.
+        speed_m_s, yaw_rate_rad_s : float
+            Odometry of the motion since the previous block's midpoint.
+        dt_s : float
+            Time since the previous block's midpoint (0 for the first block).
+
+        Raises
+        ------
+        ValueError
+            Bad heat map or odometry; the filter state is then unchanged.
+        """
+        motion.odometry_increment(speed_m_s, yaw_rate_rad_s, dt_s)   # validates
+        meas = None if heat_map is None else prepare_measurement(heat_map, self.tables.config)
+        rng_state = self.rng.bit_generator.state
+        try:
+            return self._commit(meas, speed_m_s, yaw_rate_rad_s, dt_s)
+        except BaseException:
+            self.rng.bit_generator.state = rng_state
+            raise
+
+    def _commit(self, meas: Measurement | None, speed_m_s: float, yaw_rate_rad_s: float,
+                dt_s: float) -> PoseEstimate:
+        cfg = self.config
+        poses = predict(self.poses, speed_m_s, yaw_rate_rad_s, dt_s, cfg.motion, self.rng)
+        log_w = self.log_w
+        scale = 1.0
+        slow, fast = self.log_w_slow, self.log_w_fast
+        if meas is not None:
+            z = None if self.converged else cfg.z_rand_unconverged
+            log_w, log_avg, scale = weigh(log_w, poses, self.tables, meas,
+                                          cfg.min_ess_fraction, z)
+            if not np.isfinite(log_avg):
+                pass
+            elif not np.isfinite(slow):
+                slow = fast = log_avg
+            else:
+                slow += cfg.alpha_slow * (log_avg - slow)
+                fast += cfg.alpha_fast * (log_avg - fast)
+        ess = resampling.effective_sample_size(log_w)
+        estimate = summarize(
+            poses, log_w, cfg.cluster, ess=ess,
+            direction_observable=bool(meas is not None and meas.direction_observable),
+            updated=meas is not None, model="none" if meas is None else meas.model,
+            likelihood_scale=scale)
+        if meas is not None and ess < cfg.resample_ess_fraction * poses.shape[0]:
+            n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
+            poses, log_w = resample(poses, log_w, self.rng, n_out)
+            p_inject = 0.0
+            if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
+                gap = fast - slow + self.tables.config.beta * cfg.inject_threshold_rho
+                p_inject = max(0.0, 1.0 - math.exp(min(gap, 0.0)))
+            p_inject = min(p_inject, cfg.max_inject_fraction)
+            n_inject = int(self.rng.binomial(n_out, p_inject)) if p_inject > 0 else 0
+            if n_inject:
+                poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
+                               self.rng)
+        self.poses, self.log_w = poses, log_w
+        self.log_w_slow, self.log_w_fast = slow, fast
+        self.n_steps += 1
+        if meas is not None:
+            self.converged = estimate.converged
+        return estimate
+
+    # -- checkpointing
+    def state_dict(self) -> dict[str, NDArray[Any]]:
+        """The whole filter state as numpy arrays (``np.savez``-able without pickle)."""
+        return {
+            "format": np.array(STATE_FORMAT),
+            "config": np.array(self.config.to_json()),
+            "poses": self.poses.copy(),
+            "log_w": self.log_w.copy(),
+            "log_w_slow_fast": np.array([self.log_w_slow, self.log_w_fast]),
+            "n_steps": np.array(self.n_steps, dtype=np.int64),
+            "converged": np.array(self.converged),
+            "rng": np.array(json.dumps(self.rng.bit_generator.state)),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: Mapping[str, NDArray[Any]],
+                        tables: SensorTables) -> ParticleFilter:
+        """Rebuild a filter from :meth:`state_dict` output on the same map's tables."""
+        if str(state.get("format", "")) != STATE_FORMAT:
+            raise ValueError(f"state 'format' must be {STATE_FORMAT!r}")
+        poses = np.array(state["poses"], dtype=np.float64)
+        log_w = np.array(state["log_w"], dtype=np.float64)
+        if poses.ndim != 2 or poses.shape[1] != 3 or log_w.shape != (poses.shape[0],):
+            raise ValueError("state 'poses' must be (n, 3) and 'log_w' (n,)")
+        rng_state = json.loads(str(state["rng"]))
+        rng = np.random.Generator(getattr(np.random, rng_state["bit_generator"])())
+        rng.bit_generator.state = rng_state
+        pf = cls.__new__(cls)
+        pf.tables = tables
+        pf.config = FilterConfig.from_json(str(state["config"]))
+        pf.rng = rng
+        pf.poses, pf.log_w = poses, log_w
+        pf.log_w_slow, pf.log_w_fast = (float(v) for v in state["log_w_slow_fast"])
+        pf.n_steps = int(state["n_steps"])
+        pf.converged = bool(state["converged"]) if "converged" in state else False
+        return pf
+
+
+# ---- running a filter over a run -----------------------------------------------------------
+class Steppable(Protocol):
+    """Anything with the filters' ``step`` (ParticleFilter, GridFilter)."""
+
+    def step(self, heat_map: HeatMap | None, speed_m_s: float, yaw_rate_rad_s: float,
+             dt_s: float) -> PoseEstimate: ...
+
+
+def block_odometry(speed_m_s: FloatArray, yaw_rate_rad_s: FloatArray, t_s: FloatArray,
+                   block_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Odometry from each block's midpoint to the next: mean speed and yaw rate of the two
+    blocks and the time between midpoints (0 for the first block)."""
+    v = np.asarray(speed_m_s, dtype=np.float64)
+    w = np.asarray(yaw_rate_rad_s, dtype=np.float64)
+    mid = np.asarray(t_s, dtype=np.float64) + 0.5 * block_s
+    v_step = np.concatenate([[v[0]], 0.5 * (v[1:] + v[:-1])])
+    w_step = np.concatenate([[w[0]], 0.5 * (w[1:] + w[:-1])])
+    dt = np.concatenate([[0.0], np.diff(mid)])
+    return v_step, w_step, dt
+
+
+def run_filter(filt: Steppable, heat_maps: Iterable[HeatMap | None], speed_m_s: FloatArray,
+               yaw_rate_rad_s: FloatArray, t_s: FloatArray, block_s: float
+               ) -> Iterator[PoseEstimate]:
+    """Step ``filt`` through a run's blocks, yielding one estimate per block (a generator:
+    the caller decides what to keep). A None heat map predicts only."""
+    v, w, dt = block_odometry(speed_m_s, yaw_rate_rad_s, t_s, block_s)
+    for k, hm in enumerate(heat_maps):
+        yield filt.step(hm, float(v[k]), float(w[k]), float(dt[k]))

@@ -1,0 +1,103 @@
+"""TODO docstring."""
+
+from __future__ import annotations
+
+from localization.posterior._diagnostics import (
+    CloudCalibration,
+    compare_cloud,
+    compare_with_grid,
+    hpd_thresholds,
+    summarize_samples,
+)
+from localization.posterior._grid import (
+    GridModes,
+    GridPosterior,
+    find_grid_modes,
+    full_turn_headings,
+    grid_log_posterior,
+    local_grid,
+    mode_heading_center,
+)
+from localization.posterior._moves import (
+    SnookerMove,
+    autocorr_check,
+    make_moves,
+    run_ensemble,
+    walkers_from_cloud,
+    walkers_from_grid,
+)
+from localization.posterior._records import (
+    ChainRun,
+    GridComparison,
+    ModeSummary,
+    PosteriorResult,
+    PosteriorSettings,
+    Progress,
+    result_arrays,
+)
+from localization.posterior._sampler import (
+    iter_posterior,
+    log_posterior,
+    merge_overlapping,
+    sample_posterior,
+)
+from localization.posterior._window import (
+    NDIM,
+    TWO_PI,
+    LogLikelihood,
+    PosePrior,
+    arc_offset,
+    check_block_range,
+    compose,
+    invert,
+    prior_from_tables,
+    sensor_window_log_likelihood,
+    window_from_run,
+    window_log_likelihood,
+    window_offsets,
+)
+
+__all__ = [
+    "ChainRun",
+    "CloudCalibration",
+    "GridComparison",
+    "GridModes",
+    "GridPosterior",
+    "LogLikelihood",
+    "ModeSummary",
+    "NDIM",
+    "PosePrior",
+    "PosteriorResult",
+    "PosteriorSettings",
+    "Progress",
+    "SnookerMove",
+    "TWO_PI",
+    "arc_offset",
+    "autocorr_check",
+    "check_block_range",
+    "compare_cloud",
+    "compare_with_grid",
+    "compose",
+    "find_grid_modes",
+    "full_turn_headings",
+    "grid_log_posterior",
+    "hpd_thresholds",
+    "invert",
+    "iter_posterior",
+    "local_grid",
+    "log_posterior",
+    "make_moves",
+    "merge_overlapping",
+    "mode_heading_center",
+    "prior_from_tables",
+    "result_arrays",
+    "run_ensemble",
+    "sample_posterior",
+    "sensor_window_log_likelihood",
+    "summarize_samples",
+    "walkers_from_cloud",
+    "walkers_from_grid",
+    "window_from_run",
+    "window_log_likelihood",
+    "window_offsets",
+]

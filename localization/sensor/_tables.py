@@ -1,0 +1,200 @@
+"""Lookup tables of one wall map for the sensor model (:func:`build_tables`) and the free
+space a global start draws from (:func:`free_space_mask`); see :mod:`localization.sensor`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from localization.sensor._config import SensorConfig
+from mapping.wallmap import WallMap
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SensorTables:
+    """Precomputed lookup tables of one wall map (build once per map, share between filters).
+
+    Attributes
+    ----------
+    config : SensorConfig
+    g : ndarray float32, shape (ny_pad * nx_pad,)
+        Blurred G, padded by ``pad`` cells on every side, flattened row-major.
+    offsets0 : ndarray int32, shape (n_r * n_angles,)
+        Flat index offsets of the polar samples around a cell centre at heading 0
+        (range-major: ``s = k * n_angles + j``).
+    cos_tab, sin_tab : ndarray, shape (n_headings, n_angles)
+        Direction cosines of polar angle j at heading bin b.
+    r_cells : ndarray, shape (n_r,)
+        Range bins in cells.
+    s1, s2 : ndarray float64, shape (ny * nx,)
+        Sum and sum of squares of the polar samples around each cell centre.
+    ring : ndarray float32, shape (ny * nx, n_r)
+        Polar samples around each cell centre summed over directions (range model).
+    active : tuple (iy0, iy1, ix0, ix1)
+        Cells where poses are scored (``s1``, ``s2``, ``ring`` filled); outside is off-map.
+    pad : int
+    shape : tuple (ny, nx) of the unpadded map
+    origin_m, resolution_m : map geometry (see :class:`~mapping.wallmap.WallMap`)
+    free_mask : ndarray bool, shape (ny, nx)
+        Cells a robot can stand in (see :func:`free_space_mask`).
+    """
+
+    config: SensorConfig
+    g: NDArray[np.float32]
+    offsets0: NDArray[np.int32]
+    cos_tab: FloatArray
+    sin_tab: FloatArray
+    r_cells: FloatArray
+    s1: FloatArray
+    s2: FloatArray
+    ring: NDArray[np.float32]
+    active: tuple[int, int, int, int]
+    pad: int
+    shape: tuple[int, int]
+    origin_m: tuple[float, float]
+    resolution_m: float
+    free_mask: NDArray[np.bool_]
+
+    @property
+    def n_r(self) -> int:
+        """Number of range bins."""
+        return int(self.r_cells.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        """Polar samples per pose, ``n_r * n_angles``."""
+        return int(self.offsets0.shape[0])
+
+    @property
+    def nx_pad(self) -> int:
+        """Padded row length."""
+        return self.shape[1] + 2 * self.pad
+
+
+def build_tables(
+    wall_map: WallMap, config: SensorConfig, free_mask: NDArray[np.bool_] | None = None,
+    active_margin_m: float = 1.0,
+) -> SensorTables:
+    """Precompute the polar lookup tables of ``wall_map``.
+
+    Parameters
+    ----------
+    wall_map : WallMap
+        The map G (paper eq. 5).
+    config : SensorConfig
+    free_mask : ndarray of bool, shape G.shape, optional
+        Cells a robot can occupy; default :func:`free_space_mask`.
+    active_margin_m : float
+        Poses are scored within the free cells' bounding box grown by this margin; poses
+        outside it count as off the map.
+    """
+    res = float(wall_map.resolution_m)
+    ny, nx = wall_map.shape
+    pad = int(math.ceil(config.max_range_m / res)) + 2
+    g = wall_map.G.astype(np.float64)
+    if config.map_blur_cells > 0:
+        g = ndimage.gaussian_filter(g, config.map_blur_cells, mode="constant")
+    g = np.clip(g, 0.0, None)
+    g_pad = np.zeros((ny + 2 * pad, nx + 2 * pad), dtype=np.float32)
+    g_pad[pad:pad + ny, pad:pad + nx] = g
+    if free_mask is None:
+        free_mask = free_space_mask(wall_map)
+    elif free_mask.shape != (ny, nx):
+        raise ValueError(f"free_mask must have shape {(ny, nx)}, got {free_mask.shape}")
+    cos_tab, sin_tab = _direction_tables(config)
+    r_cells = config.ranges_m / res
+    nx_pad = nx + 2 * pad
+    offsets0 = (np.floor(r_cells[:, None] * sin_tab[0][None, :] + 0.5) * nx_pad
+                + np.floor(r_cells[:, None] * cos_tab[0][None, :] + 0.5)).astype(np.int32).ravel()
+    n_r = r_cells.shape[0]
+    s1, s2 = np.zeros(ny * nx), np.zeros(ny * nx)
+    ring = np.zeros((ny * nx, n_r), dtype=np.float32)
+    active = _active_box(free_mask, int(math.ceil(active_margin_m / res)))
+    iy0, iy1, ix0, ix1 = active
+    cells = np.indices((iy1 - iy0, ix1 - ix0)).reshape(2, -1).T + np.array([iy0, ix0])
+    g_flat = g_pad.ravel()
+    for s in range(0, cells.shape[0], 1024):
+        c = cells[s:s + 1024]
+        base = (c[:, 0] + pad) * (nx + 2 * pad) + c[:, 1] + pad
+        q = g_flat[base[:, None] + offsets0[None, :]].astype(np.float64)
+        flat = c[:, 0] * nx + c[:, 1]
+        s1[flat] = q.sum(axis=1)
+        s2[flat] = (q * q).sum(axis=1)
+        ring[flat] = q.reshape(-1, n_r, config.n_angles).sum(axis=2)
+    return SensorTables(
+        config=config, g=g_flat, offsets0=offsets0, cos_tab=cos_tab, sin_tab=sin_tab,
+        r_cells=r_cells, s1=s1, s2=s2, ring=ring, active=active,
+        pad=pad,
+        shape=(ny, nx), origin_m=(float(wall_map.origin_m[0]), float(wall_map.origin_m[1])),
+        resolution_m=res, free_mask=np.asarray(free_mask, dtype=bool),
+    )
+
+
+def _active_box(free_mask: NDArray[np.bool_], margin: int) -> tuple[int, int, int, int]:
+    """(iy0, iy1, ix0, ix1): bounding box of the free cells grown by ``margin`` cells."""
+    ys, xs = np.nonzero(free_mask)
+    ny, nx = free_mask.shape
+    if ys.size == 0:
+        return (0, ny, 0, nx)
+    return (max(int(ys.min()) - margin, 0), min(int(ys.max()) + margin + 1, ny),
+            max(int(xs.min()) - margin, 0), min(int(xs.max()) + margin + 1, nx))
+
+
+def _direction_tables(config: SensorConfig) -> tuple[FloatArray, FloatArray]:
+    """cos and sin of polar angle j at heading bin b, shape (n_headings, n_angles).
+
+    Heading bin ``b * step + f`` is the polar grid rotated by ``b`` whole angle steps plus
+    ``f`` fine steps; whole-step rotations are exact circular shifts of heading bin 0, so
+    the exhaustive (FFT) scoring equals the per-pose scoring at those headings.
+    """
+    phi = 2.0 * np.pi * np.arange(config.n_angles) / config.n_angles
+    step = config.n_headings // config.n_angles
+    fine = 2.0 * np.pi * np.arange(step) / config.n_headings
+    j = np.arange(config.n_angles)
+    ang = np.stack([phi[(j + b) % config.n_angles] + fine[f]
+                    for b in range(config.n_angles) for f in range(step)])
+    return np.cos(ang), np.sin(ang)
+
+
+def free_space_mask(
+    wall_map: WallMap, wall_quantile: float = 0.999, wall_fraction: float = 0.5,
+    clearance_m: float = 0.15, margin_m: float = 1.0,
+) -> NDArray[np.bool_]:
+    """Cells where a robot can stand: the mapped region, away from strong walls.
+
+    The mapped region is where the mapping robot drove: a map built by
+    :mod:`mapping.grid` covers the mapping poses plus ``params["grid"]["radius_m"]``, so the
+    map's extent shrunk by that radius (then grown by ``margin_m``) bounds them. Within it,
+    a cell is a wall when G exceeds ``wall_fraction`` of G's ``wall_quantile`` (only the
+    strongest walls: back-projection arcs and the near-range blob along the path stay
+    free), and free cells keep ``clearance_m`` from every wall cell.
+    """
+    ny, nx = wall_map.shape
+    mask = np.ones((ny, nx), dtype=bool)
+    radius = wall_map.params.get("grid", {}).get("radius_m") if isinstance(
+        wall_map.params.get("grid"), dict) else None
+    if isinstance(radius, int | float) and radius > margin_m:
+        k = int((radius - margin_m) / wall_map.resolution_m)
+        if 2 * k < min(ny, nx):
+            mask[:] = False
+            mask[k:ny - k, k:nx - k] = True
+    g = ndimage.gaussian_filter(wall_map.G.astype(np.float64), 1.0)
+    level = float(np.quantile(g[mask], wall_quantile))
+    if level > 0:
+        wall = g > wall_fraction * level
+        dist = ndimage.distance_transform_edt(~wall) * wall_map.resolution_m
+        free = mask & (dist >= clearance_m)
+        if free.sum() >= 0.05 * mask.sum():
+            mask = free
+    labels, _ = ndimage.label(mask)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    inside = mask & ~np.isin(labels, border[border > 0])
+    if inside.sum() >= 0.05 * mask.sum():
+        mask = inside          # walls enclose a region: the robot is inside it
+    return np.asarray(mask)

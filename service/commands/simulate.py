@@ -1,0 +1,166 @@
+"""``omnisonar simulate``: a run of the sonar along a path in a scene (image sources or FDTD).
+
+The FDTD engine gets a set-up report, a progress bar with ETA, atomic checkpoints and
+``--resume``. An edge over :mod:`mapping.simulate`; no computation here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mapping.files import atomic_savez
+from mapping.signal import SonarConfig
+from service.commands.runs import _load_config, resolve_path, resolve_scene
+
+
+# ---- simulate (issue 3) ----------------------------------------------------------------
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="simulate a run of the sonar along a path in a scene")
+    p.add_argument("--scene", required=True, help="builtin:NAME or a scene JSON file")
+    p.add_argument("--path", required=True, help="built-in path NAME (or builtin:NAME)")
+    p.add_argument("--engine", default="ism", help="forward model (default ism: image sources)")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--blocks", type=int, help="number of 1.023 s blocks")
+    length.add_argument("--duration", type=float, help="seconds to simulate (whole blocks)")
+    p.add_argument("--snr-db", type=float, help="add white noise at this per-sample SNR")
+    p.add_argument("--seed", type=int, default=0, help="random seed (noise, tail; default 0)")
+    p.add_argument("--order", type=int, help="reflection order (default: automatic)")
+    p.add_argument("--spreading", choices=["3d", "2d"], default="3d",
+                   help="3d: 1/r point source (default); 2d: line source, as a 2-D FDTD")
+    p.add_argument("--rt60", type=float, help="add a diffuse reverberant tail (seconds)")
+    p.add_argument("--odometry-noise", type=float, default=0.0,
+                   help="std of the recorded speed noise in m/s")
+    p.add_argument("--speed", type=float, default=0.1, help="path speed in m/s (default 0.1)")
+    p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
+    p.add_argument("--out", required=True, help="output run file (.npz)")
+    fd = p.add_argument_group("--engine fdtd (issue 4)")
+    fd.add_argument("--grid-step", type=float, default=0.005, help="FDTD dx in m (Table 2)")
+    fd.add_argument("--time-step", type=float, default=1 / 120_000, help="FDTD dt in s")
+    fd.add_argument("--float64", action="store_true", help="float64 fields (default float32)")
+    fd.add_argument("--checkpoint-minutes", type=float, default=5.0,
+                    help="write OUT.checkpoint.npz this often (default 5)")
+    fd.add_argument("--resume", action="store_true", help="continue from OUT.checkpoint.npz")
+    p.set_defaults(func=_cmd_simulate)
+
+
+def _engine_config(args: argparse.Namespace) -> object:
+    """Engine parameters from the command line (only the ISM has options here)."""
+    from mapping.simulate import ENGINES
+    from mapping.simulate.ism import IsmConfig
+
+    if args.engine not in ENGINES:
+        raise ValueError(f"--engine must be one of {sorted(ENGINES)}, got {args.engine!r}")
+    if args.engine == "ism":
+        return IsmConfig(order=args.order, spreading=args.spreading, snr_db=args.snr_db,
+                         odometry_noise_m_s=args.odometry_noise, rt60_s=args.rt60)
+    return ENGINES[args.engine][0]()
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    import math
+    import time
+
+    from tqdm import tqdm
+
+    from mapping.files import write_run
+    from mapping.simulate import assemble_run, iter_blocks, run_meta
+
+    config = _load_config(args.config)
+    scene = resolve_scene(args.scene)
+    spec = args.path if args.path.startswith("builtin:") else f"builtin:{args.path}"
+    trajectory = resolve_path(spec, speed_m_s=args.speed)
+    if args.blocks is not None:
+        n_blocks = args.blocks
+    else:
+        seconds = trajectory.duration_s if args.duration is None else args.duration
+        n_blocks = max(1, math.ceil(seconds / config.block_s - 1e-9))
+    if n_blocks < 1:
+        raise ValueError(f"--blocks must be >= 1, got {n_blocks}")
+    if args.engine == "fdtd":
+        return _simulate_fdtd(args, scene, trajectory, config, n_blocks)
+    engine = _engine_config(args)
+    rng = np.random.default_rng(args.seed)
+    start = time.perf_counter()
+    blocks = []
+    stream = iter_blocks(scene, trajectory, config, n_blocks, engine, rng)
+    try:
+        for block in tqdm(stream, total=n_blocks, unit="block", desc="simulate"):
+            blocks.append(block)
+    except KeyboardInterrupt:
+        print(f"interrupted after {len(blocks)} blocks; nothing written", file=sys.stderr)
+        return 130
+    meta = run_meta(scene, trajectory, engine, args.seed, blocks)
+    run = assemble_run(blocks, config, scene.to_json(), meta)
+    out = write_run(args.out, run)
+    elapsed = time.perf_counter() - start
+    print(f"wrote {out}: {n_blocks} blocks ({n_blocks * config.block_s:.1f} s) of "
+          f"{trajectory.name} in {scene.name}, engine {meta['engine']}, order "
+          f"{meta.get('order')}, {elapsed:.1f} s")
+    return 0
+
+
+def _simulate_fdtd(args: argparse.Namespace, scene: object, trajectory: object,
+                   config: SonarConfig, n_blocks: int) -> int:
+    """``simulate --engine fdtd``: set-up report, progress with ETA, atomic checkpoints every
+    ``--checkpoint-minutes`` (and on Ctrl-C), ``--resume``; the run file is written last."""
+    import time
+
+    from tqdm import tqdm
+
+    from mapping.files import write_run
+    from mapping.simulate import assemble_run
+    from mapping.simulate.fdtd import (
+        FdtdConfig,
+        default_chunk_steps,
+        finished_blocks,
+        iter_fdtd,
+        new_state,
+        restore_state,
+        run_meta,
+        setup_fingerprint,
+        setup_for_scene,
+    )
+
+    fdtd = FdtdConfig(grid_step_m=args.grid_step, time_step_s=args.time_step,
+                      dtype="float64" if args.float64 else "float32")
+    setup = setup_for_scene(scene, trajectory, config, fdtd, n_blocks)  # type: ignore[arg-type]
+    for line in setup.report.lines():
+        print(line)
+    out = Path(args.out)
+    ckpt = out.with_name(out.name + ".checkpoint.npz")
+    tag = setup_fingerprint(setup)
+    state = new_state(setup)
+    if args.resume and ckpt.exists():
+        with np.load(ckpt, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+        if str(arrays.get("fingerprint")) != tag:
+            raise ValueError(f"{ckpt} belongs to a different set-up; delete it or drop --resume")
+        state = restore_state(setup, arrays)
+        print(f"resumed at step {state.step} of {setup.n_steps}")
+
+    def save() -> None:
+        atomic_savez(ckpt, {**state.to_arrays(), "fingerprint": np.array(tag)})
+
+    last = time.monotonic()
+    try:
+        with tqdm(total=setup.n_steps, initial=state.step, unit="step", desc="fdtd") as bar:
+            for progress in iter_fdtd(setup, state, default_chunk_steps(setup)):
+                bar.update(progress.steps_done - bar.n)
+                if time.monotonic() - last > 60 * args.checkpoint_minutes:
+                    save()
+                    last = time.monotonic()
+    except KeyboardInterrupt:
+        save()
+        print(f"interrupted at step {state.step}; checkpoint {ckpt}; rerun with --resume",
+              file=sys.stderr)
+        return 130
+    run = assemble_run(finished_blocks(setup, state), config,
+                       scene.to_json(), run_meta(setup))  # type: ignore[attr-defined]
+    written = write_run(out, run)
+    ckpt.unlink(missing_ok=True)
+    print(f"wrote {written}: {n_blocks} blocks, engine fdtd, grid {setup.grid.shape}")
+    return 0

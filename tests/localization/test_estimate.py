@@ -1,0 +1,90 @@
+"""Tests of circular statistics, covariance, NEES and mode clustering."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from localization.estimate import ClusterConfig, find_modes, nees, summarize, weighted_mean_cov
+from mapping.angles import circular_mean, circular_std, pose_error, wrap_angle
+
+
+def test_circular_mean_across_pi() -> None:
+    a = np.array([math.pi - 0.1, -math.pi + 0.1])
+    assert abs(wrap_angle(circular_mean(a) - math.pi)) < 1e-12
+    assert -math.pi < circular_mean(a) <= math.pi
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(0.01, 0.5))
+def test_circular_statistics_of_wrapped_normal(mu: float, sigma: float) -> None:
+    """Samples of a wrapped normal: circular mean -> mu, circular std -> sigma."""
+    rng = np.random.default_rng(0)
+    a = wrap_angle(mu + sigma * rng.standard_normal(20000))
+    assert abs(wrap_angle(circular_mean(a) - mu)) < 0.02
+    assert circular_std(a) == pytest.approx(sigma, rel=0.05)
+
+
+def test_covariance_wraps_heading() -> None:
+    rng = np.random.default_rng(1)
+    n = 20000
+    poses = np.column_stack([rng.normal(1, 0.1, n), rng.normal(2, 0.2, n),
+                             wrap_angle(math.pi + rng.normal(0, 0.05, n))])
+    mean, cov = weighted_mean_cov(poses, np.ones(n))
+    assert abs(wrap_angle(mean[2] - math.pi)) < 0.01
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [0.1, 0.2, 0.05], rtol=0.05)
+
+
+def test_nees_analytic() -> None:
+    cov = np.diag([0.04, 0.01, 0.25])
+    e = np.array([0.2, -0.1, 0.5])
+    assert nees(np.zeros(3), cov, e) == pytest.approx(0.04 / 0.04 + 0.01 / 0.01 + 0.25 / 0.25)
+    assert pose_error(np.array([0, 0, math.pi - 0.1]), np.array([3, 4, -math.pi + 0.1])) == \
+        pytest.approx((5.0, 0.2))
+
+
+def _two_clusters(w1: float) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    a = np.column_stack([rng.normal(1, 0.03, 500), rng.normal(1, 0.03, 500),
+                         rng.normal(0.5, 0.05, 500)])
+    b = np.column_stack([rng.normal(3, 0.03, 500), rng.normal(1, 0.03, 500),
+                         rng.normal(-2.0, 0.05, 500)])
+    w = np.concatenate([np.full(500, w1 / 500), np.full(500, (1 - w1) / 500)])
+    return np.vstack([a, b]), w
+
+
+def test_find_modes_weights_and_means() -> None:
+    poses, w = _two_clusters(0.3)
+    modes = find_modes(poses, w, ClusterConfig())
+    assert len(modes) == 2
+    assert modes[0].weight == pytest.approx(0.7)
+    assert modes[1].weight == pytest.approx(0.3)
+    np.testing.assert_allclose(modes[0].mean[:2], [3, 1], atol=0.01)
+    np.testing.assert_allclose(modes[1].mean[:2], [1, 1], atol=0.01)
+
+
+def test_mode_across_heading_wrap_is_one_mode() -> None:
+    rng = np.random.default_rng(4)
+    poses = np.column_stack([rng.normal(1, 0.03, 1000), rng.normal(1, 0.03, 1000),
+                             wrap_angle(math.pi + rng.normal(0, 0.1, 1000))])
+    modes = find_modes(poses, np.ones(1000), ClusterConfig())
+    assert len(modes) == 1
+    assert modes[0].weight == pytest.approx(1.0)
+    assert abs(wrap_angle(modes[0].mean[2] - math.pi)) < 0.02
+
+
+def test_summarize_converged_flag() -> None:
+    poses, w = _two_clusters(0.02)
+    est = summarize(poses, np.log(w), ClusterConfig(), ess=10.0, direction_observable=True,
+                    updated=True, model="correlation")
+    assert est.converged
+    assert est.cov_all[0, 0] > est.cov[0, 0]
+    poses, w = _two_clusters(0.4)
+    est = summarize(poses, np.log(w), ClusterConfig(), ess=10.0, direction_observable=True,
+                    updated=True, model="correlation")
+    assert not est.converged
+    assert len(est.modes) == 2
