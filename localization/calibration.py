@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from localization.estimate import track_metrics
+from localization.estimate import default_start_cov, track_metrics
 from localization.particle_filter import FilterConfig, ParticleFilter, run_filter
 from localization.sensor import SensorTables
 from mapping.heatmap import HeatMap, heatmap_of_run
@@ -165,7 +165,7 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
         raise ValueError(f"n_seeds must be >= 1, got {n_seeds}")
     if any(not (math.isfinite(b) and b > 0) for b in betas) or not betas:
         raise ValueError("betas must be a nonempty sequence of finite values > 0")
-    cov = (np.diag([0.1**2, 0.1**2, math.radians(10.0) ** 2]) if prior_cov is None
+    cov = (default_start_cov() if prior_cov is None
            else np.asarray(prior_cov, dtype=np.float64))
     cand = sorted(float(b) for b in betas)
     seeds = rng.integers(0, 2**63 - 1, size=(len(cand), len(runs), n_seeds))

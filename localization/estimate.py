@@ -103,6 +103,12 @@ class PoseEstimate:
 
 
 
+def default_start_cov() -> FloatArray:
+    """The start covariance of a tracked start when none is given: 10 cm in x and y and
+    10 deg in heading, independent (a fresh array each call)."""
+    return np.diag([0.1**2, 0.1**2, math.radians(10.0) ** 2])
+
+
 def weighted_mean_cov(poses: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Mean (circular in heading) and covariance (heading deviations wrapped) of poses."""
     w = weights / weights.sum()

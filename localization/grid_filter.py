@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from localization import motion
-from localization.estimate import ClusterConfig, PoseEstimate, summarize
+from localization.estimate import ClusterConfig, PoseEstimate, default_start_cov, summarize
 from localization.motion import MotionNoise
 from localization.sensor import (
     SensorTables,
@@ -122,7 +122,7 @@ class GridFilter:
         if pose is None:
             self.reset_global()
         else:
-            self.reset_tracked(pose, np.diag([0.1**2, 0.1**2, math.radians(10) ** 2])
+            self.reset_tracked(pose, default_start_cov()
                                if cov is None else cov)
 
     @property

@@ -1,14 +1,14 @@
 """The ``omnisonar`` command line: parses arguments, reads and writes files, prints.
 
 Every subcommand is a thin edge over functions in ``mapping`` and ``localization``; no
-computation lives here. Each subcommand is an ``_add_<name>(subparsers)`` function that
+computation lives here. Each subcommand is an ``add_<name>(subparsers)`` function that
 registers its parser and sets ``func`` to a ``_cmd_<name>(args) -> int`` handler.
 
-The subcommands live by topic in ``service/cli_<group>.py``: ``cli_runs`` (signal, scenes,
-import-run, export-run, and the shared ``resolve_scene`` / ``resolve_path``),
-``cli_simulate``, ``cli_maps`` (heatmap, build-map, evaluate-map), ``cli_localize``
-(localize, calibrate, posterior) and ``cli_service`` (serve, demo-api, demo). This module holds the
-``_COMMANDS`` registry (in ``--help`` order), the parser and the entry point.
+The subcommands live by topic in :mod:`service.commands`: ``runs`` (signal, scenes,
+import-run, export-run, and the shared ``resolve_scene`` / ``resolve_path``), ``simulate``,
+``maps`` (heatmap, build-map, evaluate-map), ``localize`` (localize, calibrate, posterior) and
+``serve`` (serve, demo-api, demo). This module holds the ``_COMMANDS`` registry (in
+``--help`` order), the parser and the entry point.
 """
 
 from __future__ import annotations
@@ -17,37 +17,35 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from service.commands.localize import _add_calibrate, _add_localize, _add_posterior
-from service.commands.maps import _add_build_map, _add_evaluate_map, _add_heatmap
+from service.commands.localize import add_calibrate, add_localize, add_posterior
+from service.commands.maps import add_build_map, add_evaluate_map, add_heatmap
 from service.commands.runs import (
-    _add_export_run,
-    _add_import_run,
-    _add_scenes,
-    _add_signal,
-    resolve_path,
-    resolve_scene,
+    add_export_run,
+    add_import_run,
+    add_scenes,
+    add_signal,
 )
-from service.commands.serve import _add_demo, _add_demo_api, _add_serve
-from service.commands.simulate import _add_simulate
+from service.commands.serve import add_demo, add_demo_api, add_serve
+from service.commands.simulate import add_simulate
 
-__all__ = ["build_parser", "main", "resolve_path", "resolve_scene"]
+__all__ = ["build_parser", "main"]
 
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
-    _add_scenes,
-    _add_import_run,
-    _add_export_run,
-    _add_signal,
-    _add_simulate,
-    _add_serve,
-    _add_demo_api,
-    _add_posterior,
-    _add_heatmap,
-    _add_demo,
-    _add_build_map,
-    _add_evaluate_map,
-    _add_localize,
-    _add_calibrate,
+    add_scenes,
+    add_import_run,
+    add_export_run,
+    add_signal,
+    add_simulate,
+    add_serve,
+    add_demo_api,
+    add_posterior,
+    add_heatmap,
+    add_demo,
+    add_build_map,
+    add_evaluate_map,
+    add_localize,
+    add_calibrate,
 ]
 
 

@@ -42,7 +42,7 @@ from scipy.special import logsumexp
 from scipy.stats import norm
 
 from localization import motion, resampling
-from localization.estimate import PoseEstimate, summarize
+from localization.estimate import PoseEstimate, default_start_cov, summarize
 from localization.motion import MotionNoise
 from localization.particle_filter._config import FilterConfig
 from localization.sensor import (
@@ -230,7 +230,7 @@ class ParticleFilter:
         if pose is None:
             self.reset_global()
         else:
-            self.reset_tracked(pose, np.diag([0.1**2, 0.1**2, math.radians(10) ** 2])
+            self.reset_tracked(pose, default_start_cov()
                                if cov is None else cov)
 
     # -- initialization

@@ -18,7 +18,7 @@ from mapping.files import atomic_savez, atomic_write
 
 
 # ---- localize (issue 6) ---------------------------------------------------------------
-def _add_localize(sub: argparse._SubParsersAction) -> None:
+def add_localize(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("localize", help="localize a run on a wall map (paper Fig. 1(b))")
     p.add_argument("run", metavar="RUN.npz", help="run file to localize")
     p.add_argument("--map", required=True, metavar="MAP.npz", help="wall map (omnisonar-map-1)")
@@ -42,7 +42,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     import json
     import math
 
-    from localization.estimate import track_metrics
+    from localization.estimate import default_start_cov, track_metrics
     from localization.grid_filter import GridFilter
     from localization.particle_filter import FilterConfig, ParticleFilter, Steppable, run_filter
     from localization.sensor import SensorConfig, build_tables, validate_block
@@ -61,7 +61,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     if args.init == "tracked" and not tracked[0]:
         raise ValueError("--init tracked needs a tracked pose in the run's first block")
     pose0 = run.pose[0] if args.init == "tracked" else None
-    cov0 = np.diag([0.1**2, 0.1**2, math.radians(10.0) ** 2])
+    cov0 = default_start_cov()
     filt: Steppable
     if args.filter == "grid":
         filt = GridFilter(tables, pose=pose0, cov=cov0)
@@ -122,7 +122,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 
 
 # ---- calibrate (issue 6: the sensor sharpness that makes the covariance honest) -----------
-def _add_calibrate(sub: argparse._SubParsersAction) -> None:
+def add_calibrate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate",
                        help="pick the sensor sharpness beta of a map by NEES on tracked runs")
     p.add_argument("runs", nargs="+", metavar="RUN.npz",
@@ -172,7 +172,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 # ---- posterior (issue 8: offline emcee study of the pose posterior) -----------------------
-def _add_posterior(sub: argparse._SubParsersAction) -> None:
+def add_posterior(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("posterior", help="sample the pose posterior of a block window (emcee)")
     p.add_argument("run", help="run file (.npz)")
     p.add_argument("--map", required=True, help="wall map file (.npz)")

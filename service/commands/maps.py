@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 
 
 # ---- heatmap / demo (issue 2: the Doppler heat map, paper Sec. 2.1) ----------------------
-def _add_heatmap(sub: argparse._SubParsersAction) -> None:
+def add_heatmap(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("heatmap", help="Doppler heat map of one block of a run file (eq. 1)")
     p.add_argument("run", help="run file (.npz)")
     p.add_argument("--block", type=int, required=True, help="block index K")
@@ -56,7 +56,7 @@ def _cmd_heatmap(args: argparse.Namespace) -> int:
 
 
 # ---- build-map / evaluate-map (issue 5) ---------------------------------------------------
-def _add_build_map(sub: argparse._SubParsersAction) -> None:
+def add_build_map(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("build-map", help="wall map G from tracked runs (paper Sec. 2.2)")
     p.add_argument("runs", nargs="+", metavar="RUN.npz", help="tracked run files")
     p.add_argument("--out", required=True, help="output map file (.npz, omnisonar-map-1)")
@@ -127,7 +127,7 @@ def _scene_of_run(path: Path) -> Scene | None:
         return Scene.from_json(str(npz["scene"])) if "scene" in npz.files else None
 
 
-def _add_evaluate_map(sub: argparse._SubParsersAction) -> None:
+def add_evaluate_map(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate-map", help="precision, recall, ghost energy of a map vs walls")
     p.add_argument("map", metavar="MAP.npz")
     p.add_argument("--scene", required=True, help="builtin:NAME or a scene JSON file")

@@ -29,7 +29,7 @@ def _load_config(path: str | None) -> SonarConfig:
 
 
 # ---- signal ---------------------------------------------------------------------------
-def _add_signal(sub: argparse._SubParsersAction) -> None:
+def add_signal(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("signal", help="write one block of the transmitted signal as a WAV")
     p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
     p.add_argument("--out", required=True, help="output WAV (float32, mono, at fs)")
@@ -75,7 +75,7 @@ def resolve_path(spec: str, speed_m_s: float = 0.1) -> Trajectory:
     return builtin_path(spec.removeprefix("builtin:"), speed_m_s=speed_m_s)
 
 
-def _add_scenes(sub: argparse._SubParsersAction) -> None:
+def add_scenes(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scenes", help="list the built-in scenes and paths")
     p.add_argument("--show", metavar="NAME", help="print the JSON of built-in scene NAME")
     p.set_defaults(func=_cmd_scenes)
@@ -107,7 +107,7 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_import_run(sub: argparse._SubParsersAction) -> None:
+def add_import_run(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import-run", help="real recording (WAV + pose CSV) -> run file")
     p.add_argument("--wav", required=True, help="mono WAV at the sonar rate, starting on a "
                    "transmission period boundary")
@@ -150,7 +150,7 @@ def _cmd_import_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_export_run(sub: argparse._SubParsersAction) -> None:
+def add_export_run(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export-run", help="run file -> WAV + pose CSV (block midpoints)")
     p.add_argument("run", help="run file (.npz)")
     p.add_argument("--wav", required=True, help="output WAV (float32, mono, at fs)")

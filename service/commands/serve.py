@@ -14,7 +14,7 @@ from mapping.signal import SonarConfig
 
 
 # ---- serve / demo-api (the HTTP service: service/app.py) ----------------------------------
-def _add_serve(sub: argparse._SubParsersAction) -> None:
+def add_serve(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="run the localization HTTP service (uvicorn)")
     p.add_argument("--maps", help="maps directory (default: $OMNISONAR_MAPS_DIR or var/maps)")
     p.add_argument("--host", default="127.0.0.1")
@@ -30,7 +30,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_demo_api(sub: argparse._SubParsersAction) -> None:
+def add_demo_api(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo-api", help="start the service, stream a held-out run, stop it")
     p.add_argument("--out", default="out/demo-api", help="work directory (maps, sessions)")
     p.add_argument("--blocks", type=int, default=None, help="stream only the first N blocks")
@@ -47,7 +47,7 @@ def _cmd_demo_api(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_demo(sub: argparse._SubParsersAction) -> None:
+def add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
         help="the main job end to end: a heat map next to one wall, then the paper scene's "

@@ -18,7 +18,7 @@ from service.commands.runs import _load_config, resolve_path, resolve_scene
 
 
 # ---- simulate (issue 3) ----------------------------------------------------------------
-def _add_simulate(sub: argparse._SubParsersAction) -> None:
+def add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a run of the sonar along a path in a scene")
     p.add_argument("--scene", required=True, help="builtin:NAME or a scene JSON file")
     p.add_argument("--path", required=True, help="built-in path NAME (or builtin:NAME)")

@@ -6,27 +6,9 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from localization.estimate import ClusterConfig, find_modes, nees, summarize, weighted_mean_cov
-from mapping.angles import circular_mean, circular_std, pose_error, wrap_angle
-
-
-def test_circular_mean_across_pi() -> None:
-    a = np.array([math.pi - 0.1, -math.pi + 0.1])
-    assert abs(wrap_angle(circular_mean(a) - math.pi)) < 1e-12
-    assert -math.pi < circular_mean(a) <= math.pi
-
-
-@settings(max_examples=50, deadline=None)
-@given(st.floats(-math.pi, math.pi), st.floats(0.01, 0.5))
-def test_circular_statistics_of_wrapped_normal(mu: float, sigma: float) -> None:
-    """Samples of a wrapped normal: circular mean -> mu, circular std -> sigma."""
-    rng = np.random.default_rng(0)
-    a = wrap_angle(mu + sigma * rng.standard_normal(20000))
-    assert abs(wrap_angle(circular_mean(a) - mu)) < 0.02
-    assert circular_std(a) == pytest.approx(sigma, rel=0.05)
+from mapping.angles import pose_error, wrap_angle
 
 
 def test_covariance_wraps_heading() -> None:

@@ -18,7 +18,6 @@ from mapping.heatmap import HeatMap
 from tests.localization.helpers import (
     ASYMMETRIC_ROOM,
     CORRIDOR,
-    asymmetric_tables,
     odometry_step,
     rasterize,
     synthetic_heatmap,
@@ -29,11 +28,6 @@ from tests.localization.helpers import (
 DT = 1.023
 ODO = [(0.2, 0.0)] * 3 + [(0.2, 0.35)] * 4 + [(0.2, 0.0)] * 2
 START = np.array([0.8, 0.6, 0.0])
-
-
-@pytest.fixture(scope="module")
-def tables() -> SensorTables:
-    return asymmetric_tables()
 
 
 @pytest.fixture(scope="module")

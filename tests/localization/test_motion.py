@@ -22,18 +22,6 @@ from mapping.angles import wrap_angle
 QUIET = MotionNoise(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@given(st.floats(-100.0, 100.0))
-def test_wrap_angle_range_and_equivalence(a: float) -> None:
-    w = float(wrap_angle(a))
-    assert -math.pi < w <= math.pi
-    assert math.isclose(math.cos(w), math.cos(a), abs_tol=1e-9)
-    assert math.isclose(math.sin(w), math.sin(a), abs_tol=1e-9)
-
-
-def test_wrap_angle_maps_minus_pi_to_pi() -> None:
-    assert float(wrap_angle(-math.pi)) == pytest.approx(math.pi)
-
-
 @given(st.floats(-1.0, 1.0), st.floats(-2.0, 2.0), st.floats(0.0, 3.0), st.floats(-3.0, 3.0))
 def test_arc_endpoint_matches_circle_geometry(v: float, w: float, dt: float, h0: float) -> None:
     """The chord decomposition lands on the exact circular arc x = R(sin(h0+wt) - sin h0)."""
