@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test lint demo bench serve clean
+.PHONY: setup test lint docs demo bench serve clean
 
 setup: $(STAMP)
 
@@ -19,7 +19,11 @@ lint: $(STAMP)
 	$(BIN)/ruff check mapping localization service tests benchmarks
 	$(BIN)/mypy mapping localization service tests
 
-test: lint
+# The docs site (mkdocs.yml, docs/): warnings are errors, so a broken link or docstring fails.
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict --site-dir site
+
+test: lint docs
 	$(BIN)/python -m pytest
 
 demo: $(STAMP)
