@@ -169,7 +169,8 @@ def summarize_cases(tracked: list[dict[str, Any]], global_: list[dict[str, Any]]
 def kernel_baseline(tables: SensorTables, hm: HeatMap, n: int = 2000, reps: int = 30
                     ) -> dict[str, float]:
     """Sensor scoring of ``n`` poses: numba kernel vs its numpy twin, same process."""
-    from localization.sensor import prepare_measurement, score_poses, score_poses_numpy
+    from localization.sensor import prepare_measurement, score_poses
+    from tests.localization.sensor.naive import score_poses_numpy
 
     rng = np.random.default_rng(0)
     iy, ix = np.nonzero(tables.free_mask)

@@ -1,6 +1,7 @@
 """numba kernels of the resamplers; imported only by :mod:`localization.resampling`.
 
-Each kernel has a plain numpy twin (``*_numpy``) that the tests compare it with.
+Each kernel's slow, plain numpy twin lives with the tests (``tests/localization/naive.py``),
+which compare the two.
 """
 
 from __future__ import annotations
@@ -31,14 +32,6 @@ def _systematic_kernel(
             j += 1
             cum += weights[j]
         out[i] = j
-
-
-def _systematic_numpy(weights: NDArray[np.float64], u0: float, n_out: int) -> NDArray[np.int64]:
-    """Plain numpy twin of :func:`_systematic_kernel`."""
-    cdf = np.cumsum(weights)
-    u = (u0 + np.arange(n_out)) / n_out
-    idx = np.searchsorted(cdf, u, side="right")
-    return np.minimum(idx, weights.shape[0] - 1).astype(np.int64)
 
 
 def systematic(weights: NDArray[np.float64], u0: float, n_out: int) -> NDArray[np.int64]:

@@ -70,15 +70,12 @@ def systematic_resample(
     return _k.systematic(w, float(rng.random()), n_out)
 
 
-def systematic_resample_numpy(
-    weights: FloatArray, u0: float, n_out: int
-) -> NDArray[np.int64]:
-    """Plain numpy twin of the kernel behind :func:`systematic_resample` (for tests)."""
-    return _k._systematic_numpy(_checked_weights(weights), u0, n_out)
-
-
 def systematic_resample_u0(weights: FloatArray, u0: float, n_out: int) -> NDArray[np.int64]:
-    """The numba kernel with a given ``u0`` in [0, 1) (for tests against the twin)."""
+    """:func:`systematic_resample` with a given draw ``u0`` in [0, 1) instead of a generator.
+
+    Deterministic: the tests compare it with the kernel's numpy twin
+    (``tests/localization/naive.py``) and check its counts.
+    """
     if not 0.0 <= u0 < 1.0:
         raise ValueError(f"u0 must be in [0, 1), got {u0}")
     return _k.systematic(_checked_weights(weights), u0, n_out)

@@ -1,4 +1,26 @@
-"""TODO docstring."""
+"""The sensor model: the likelihood of a heat map given a pose and the wall map G.
+
+At a pose the map predicts what the sonar should hear by sampling G on a polar grid around it
+(the inverse of the paper's eqs. 2-4); the measured heat map (eq. 1), which only knows
+``|angle|``, is unfolded onto the same grid with both mirror sides equal, and the score is the
+Pearson correlation ``rho`` of the two. Two models (`Model`): ``correlation`` and ``range``
+(range profile only; heading-free, used automatically when the robot is too slow for the
+Doppler bank). The likelihood is tempered and floored,
+``log((1 - z_rand) exp(beta (rho - rho_best)) + z_rand)``.
+
+Entry points: `SensorConfig`; `build_tables` (`SensorTables`: lookup tables of one map) and
+`free_space_mask`; `prepare_measurement` (`Measurement`: a heat map checked and reduced to its
+strongest entries), `validate_block`, `validate_heatmap`, `uses_direction`; scoring
+`score_poses`, `score_cells_all_headings` (every heading at once by FFT), `log_likelihood`,
+`pose_log_likelihood`, `polar_prediction`.
+
+Notes
+-----
+Private modules: ``_config`` (`SensorConfig`), ``_tables`` (lookup tables, free space),
+``_measurement`` (checking and preparing a measurement), ``_scoring`` (the model and its
+likelihood), ``_kernels`` (serial numba kernels; their numpy twins live in the tests,
+``tests/localization/sensor/naive.py``).
+"""
 
 from __future__ import annotations
 
@@ -21,7 +43,6 @@ from localization.sensor._scoring import (
     pose_log_likelihood,
     score_cells_all_headings,
     score_poses,
-    score_poses_numpy,
 )
 from localization.sensor._tables import (
     SensorTables,
@@ -44,7 +65,6 @@ __all__ = [
     "prepare_measurement",
     "score_cells_all_headings",
     "score_poses",
-    "score_poses_numpy",
     "uses_direction",
     "validate_block",
     "validate_heatmap",

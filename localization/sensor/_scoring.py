@@ -61,8 +61,7 @@ OFF_MAP_PENALTY = 10.0
 
 
 # ---- scoring -------------------------------------------------------------------------------
-def _index(tables: SensorTables, poses: FloatArray) -> tuple[
-        NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+def _index(tables: SensorTables, poses: FloatArray) -> _k._Particles:
     """Padded flat index of each pose's nearest cell, its offset (ux, uy) from that cell's
     centre in cells, its heading bin and its map cell (-1 off the map)."""
     cfg = tables.config
@@ -76,8 +75,8 @@ def _index(tables: SensorTables, poses: FloatArray) -> tuple[
     hb = np.rint(poses[:, 2] * cfg.n_headings / (2 * np.pi)).astype(np.int64) % cfg.n_headings
     cell = np.where(on, iy * tables.shape[1] + ix, -1).astype(np.int64)
     base = np.where(on, (iy + tables.pad) * tables.nx_pad + ix + tables.pad, 0)
-    return (base.astype(np.int64), np.ascontiguousarray(u[:, 0]),
-            np.ascontiguousarray(u[:, 1]), hb, cell)
+    return _k._Particles(base=base.astype(np.int64), ux=np.ascontiguousarray(u[:, 0]),
+                         uy=np.ascontiguousarray(u[:, 1]), hb=hb, cell=cell)
 
 
 def _check(poses: FloatArray) -> FloatArray:
@@ -93,31 +92,17 @@ def score_poses(tables: SensorTables, measurement: Measurement, poses: FloatArra
     """Correlation ``rho`` in [-1, 1] of the measurement with G at each pose (n, 3).
 
     NaN marks a pose off the map. Correlation model: one pose costs one gather and one
-    multiply-add per kept measurement entry (numba, parallel over poses); the sample sums
+    multiply-add per kept measurement entry (a serial numba loop over poses); the sample sums
     in the denominator are the pose's cell-centre values (heading-invariant up to the
     polar sampling). Range model: a dot product with the cell's ring profile; it does not
     depend on the heading at all.
     """
     poses = _check(poses)
-    base, ux, uy, hb, cell = _index(tables, poses)
+    particles = _index(tables, poses)
     if measurement.model == "range":
-        return _k.score_range(tables.ring, cell, measurement.dense)
-    return _k.score(tables.g, tables.nx_pad, tables.cos_tab, tables.sin_tab,
-                    tables.r_cells, base, ux, uy, hb, cell, tables.s1, tables.s2, measurement.idx,
-                    measurement.val, measurement.m_mean, measurement.m_norm, tables.n_samples)
-
-
-def score_poses_numpy(tables: SensorTables, measurement: Measurement,
-                      poses: FloatArray) -> FloatArray:
-    """Plain numpy twin of :func:`score_poses` (for tests)."""
-    poses = _check(poses)
-    base, ux, uy, hb, cell = _index(tables, poses)
-    if measurement.model == "range":
-        return _k._range_numpy(tables.ring, cell, measurement.dense)
-    return _k._score_numpy(tables.g, tables.nx_pad, tables.cos_tab,
-                           tables.sin_tab, tables.r_cells, base, ux, uy, hb, cell, tables.s1,
-                           tables.s2, measurement.idx, measurement.val, measurement.m_mean,
-                           measurement.m_norm, tables.n_samples)
+        return _k.score_range(tables.ring, particles.cell, measurement.dense)
+    return _k.score(tables._kernel, particles, measurement.idx, measurement.val,
+                    measurement.m_mean, measurement.m_norm)
 
 
 def log_likelihood(rho: FloatArray, config: SensorConfig, rho_ref: float = 1.0) -> FloatArray:
@@ -134,7 +119,11 @@ def log_likelihood(rho: FloatArray, config: SensorConfig, rho_ref: float = 1.0) 
         correlation in its set, so the floor bounds the weight ratio one block can cause
         to ``1 / z_rand``; 1.0 (the perfect match) gives an absolute scale.
 
-    NaN (off the map) maps to ``log(z_rand) - OFF_MAP_PENALTY``.
+    Returns
+    -------
+    ndarray
+        Log-likelihoods, the shape of ``rho``; a NaN correlation (off the map) maps to
+        ``log(z_rand) - OFF_MAP_PENALTY``.
     """
     rho = np.asarray(rho, dtype=np.float64)
     z = config.z_rand
@@ -181,6 +170,24 @@ def cell_polar_samples(tables: SensorTables, cells: NDArray[np.int64]) -> NDArra
     return out.reshape(cells.shape[0], tables.n_r, tables.config.n_angles)
 
 
+def _range_scores_numpy(ring: NDArray[np.float32], cell: NDArray[np.int64],
+                        m0: FloatArray) -> FloatArray:
+    """Range-model ``rho`` at the cells ``cell`` (< 0: nan), in numpy.
+
+    Kept in production for :func:`score_cells_all_headings` (numpy and FFTs throughout):
+    centring each ring profile first gives the values it has always returned to the last
+    bit, which the range kernel (sums and sums of squares) need not. Not the kernel's test
+    twin; that is a copy of this code in ``tests/localization/sensor/naive.py``.
+    """
+    out = np.full(cell.shape[0], np.nan)
+    ok = cell >= 0
+    p = ring[cell[ok]].astype(np.float64)
+    pc = p - p.mean(axis=1, keepdims=True)
+    norm = np.sqrt((pc**2).sum(axis=1))
+    out[ok] = np.where(norm > 1e-9, (pc @ m0) / np.maximum(norm, 1e-9), 0.0)
+    return out
+
+
 def score_cells_all_headings(
     tables: SensorTables, measurement: Measurement, cells: NDArray[np.int64],
     chunk: int = 512,
@@ -195,7 +202,7 @@ def score_cells_all_headings(
     cells = np.asarray(cells, dtype=np.int64)
     flat = cells[:, 0] * tables.shape[1] + cells[:, 1]
     if measurement.model == "range":
-        rho = _k._range_numpy(tables.ring, flat, measurement.dense)
+        rho = _range_scores_numpy(tables.ring, flat, measurement.dense)
         return np.repeat(rho[:, None], cfg.n_angles, axis=1)
     out = np.empty((cells.shape[0], cfg.n_angles))
     fm = np.conj(np.fft.rfft(measurement.dense.reshape(tables.n_r, cfg.n_angles), axis=1))

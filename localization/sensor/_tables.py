@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
 from localization.sensor._config import SensorConfig
+from localization.sensor._kernels import _ScoreTables
 from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
@@ -75,6 +77,13 @@ class SensorTables:
     def nx_pad(self) -> int:
         """Padded row length."""
         return self.shape[1] + 2 * self.pad
+
+    @cached_property
+    def _kernel(self) -> _ScoreTables:
+        """The tables as the record the scoring kernels take (built once per instance)."""
+        return _ScoreTables(g=self.g, nx_pad=self.nx_pad, cos_tab=self.cos_tab,
+                            sin_tab=self.sin_tab, r_cells=self.r_cells, s1=self.s1, s2=self.s2,
+                            ring=self.ring, n_samp=self.n_samples)
 
 
 def build_tables(

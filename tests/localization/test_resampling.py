@@ -14,9 +14,9 @@ from localization.resampling import (
     effective_sample_size,
     normalize_log_weights,
     systematic_resample,
-    systematic_resample_numpy,
     systematic_resample_u0,
 )
+from tests.localization.naive import systematic_resample_numpy
 
 weights_st = arrays(np.float64, st.integers(1, 60), elements=st.floats(0.0, 1.0)).filter(
     lambda w: w.sum() > 1e-6)

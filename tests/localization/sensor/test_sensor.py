@@ -21,13 +21,13 @@ from localization.sensor import (
     prepare_measurement,
     score_cells_all_headings,
     score_poses,
-    score_poses_numpy,
     uses_direction,
     validate_block,
 )
 from localization.sensor._measurement import _bin_ranges as bin_ranges
 from mapping.heatmap import HeatMap
 from tests.localization.helpers import ASYMMETRIC_ROOM, rasterize, synthetic_heatmap
+from tests.localization.sensor.naive import score_poses_numpy
 
 TRUTH = np.array([1.3, 1.1, 0.4])
 

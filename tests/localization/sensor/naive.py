@@ -1,0 +1,80 @@
+"""Slow, plain numpy twins of the sensor model's numba kernels, used only by the tests
+(and as the baseline of ``benchmarks/localization_bench.py``).
+
+:func:`score_poses_numpy` is the twin of :func:`localization.sensor.score_poses`: the pose
+indexing, then the correlation model as one dense gather of every particle's polar samples
+at the measurement's entries, or the range model from centred ring profiles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from localization.sensor import Measurement, SensorTables
+
+FloatArray = NDArray[np.float64]
+
+
+def index_poses(tables: SensorTables, poses: FloatArray) -> tuple[
+        NDArray[np.int64], FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+    """Padded flat index of each pose's nearest cell, its offset (ux, uy) from that cell's
+    centre in cells, its heading bin and its map cell (-1 off the map)."""
+    cfg = tables.config
+    c = (poses[:, :2] - np.asarray(tables.origin_m)) / tables.resolution_m
+    near = np.floor(c + 0.5)
+    u = c - near
+    u = np.where(np.abs(u) < 1e-9, 0.0, u)       # cell centres exactly
+    ix, iy = near[:, 0].astype(np.int64), near[:, 1].astype(np.int64)
+    iy0, iy1, ix0, ix1 = tables.active
+    on = (ix >= ix0) & (ix < ix1) & (iy >= iy0) & (iy < iy1)
+    hb = np.rint(poses[:, 2] * cfg.n_headings / (2 * np.pi)).astype(np.int64) % cfg.n_headings
+    cell = np.where(on, iy * tables.shape[1] + ix, -1).astype(np.int64)
+    base = np.where(on, (iy + tables.pad) * tables.nx_pad + ix + tables.pad, 0)
+    return base.astype(np.int64), u[:, 0], u[:, 1], hb, cell
+
+
+def score_numpy(tables: SensorTables, measurement: Measurement, base: NDArray[np.int64],
+                ux: FloatArray, uy: FloatArray, hb: NDArray[np.int64],
+                cell: NDArray[np.int64]) -> FloatArray:
+    """Twin of the correlation kernel ``_score_kernel`` (returns the scores)."""
+    g, nx_pad, r_cells = tables.g, tables.nx_pad, tables.r_cells
+    cos_tab, sin_tab, s1, s2 = tables.cos_tab, tables.sin_tab, tables.s1, tables.s2
+    idx, val = measurement.idx, measurement.val
+    out = np.full(base.shape[0], np.nan)
+    ok = cell >= 0
+    n_angles = cos_tab.shape[1]
+    k, j = idx // n_angles, idx % n_angles
+    h = hb[ok][:, None]
+    dx = np.floor(r_cells[k][None, :] * cos_tab[h, j[None, :]] + (ux[ok][:, None] + 0.5))
+    dy = np.floor(r_cells[k][None, :] * sin_tab[h, j[None, :]] + (uy[ok][:, None] + 0.5))
+    p = g[base[ok][:, None] + (dy * nx_pad + dx).astype(np.int64)].astype(np.float64)
+    c = cell[ok]
+    var = s2[c] - s1[c] ** 2 / tables.n_samples
+    num = p @ val - measurement.m_mean * s1[c]
+    out[ok] = np.where(var > 1e-18,
+                       num / (measurement.m_norm * np.sqrt(np.maximum(var, 1e-18))), 0.0)
+    return out
+
+
+def range_numpy(ring: NDArray[np.float32], cell: NDArray[np.int64],
+                m0: FloatArray) -> FloatArray:
+    """Twin of the range kernel ``_range_kernel``: correlation of ``m0`` (zero mean, unit
+    norm) with each cell's centred ring profile (``cell < 0``: nan)."""
+    out = np.full(cell.shape[0], np.nan)
+    ok = cell >= 0
+    p = ring[cell[ok]].astype(np.float64)
+    pc = p - p.mean(axis=1, keepdims=True)
+    norm = np.sqrt((pc**2).sum(axis=1))
+    out[ok] = np.where(norm > 1e-9, (pc @ m0) / np.maximum(norm, 1e-9), 0.0)
+    return out
+
+
+def score_poses_numpy(tables: SensorTables, measurement: Measurement,
+                      poses: FloatArray) -> FloatArray:
+    """Twin of :func:`localization.sensor.score_poses` (poses (n, 3); nan off the map)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    base, ux, uy, hb, cell = index_poses(tables, poses)
+    if measurement.model == "range":
+        return range_numpy(tables.ring, cell, measurement.dense)
+    return score_numpy(tables, measurement, base, ux, uy, hb, cell)
