@@ -1,4 +1,23 @@
-"""TODO docstring."""
+"""Monte Carlo localization on the acoustic wall map (paper Fig. 1(b)).
+
+Pure functions do the work -- `init_tracked`, `init_global`, `predict` (odometry motion
+model), `weigh` (sensor log-likelihood, log-sum-exp), `resample` (systematic), `inject`
+(augmented MCL with sensor resetting), `temper_to_ess`, `kld_count` -- and `ParticleFilter` is
+a thin stateful object that calls them in order, one sonar block per ``step``, and returns a
+`localization.estimate.PoseEstimate`. A bad block raises ``ValueError`` and leaves the state
+unchanged; ``state_dict`` / ``ParticleFilter.from_state_dict`` round-trip through ``np.savez``
+without pickle (`STATE_FORMAT`). `run_filter` runs a filter over a whole run;
+`block_odometry` gives the odometry between consecutive block midpoints; `Steppable` is
+anything with the filters' ``step`` (`ParticleFilter`, the grid filter).
+
+Entry points: `FilterConfig` (every parameter, with its unit and measured effect) and
+`ParticleFilter`.
+
+Notes
+-----
+Private modules: ``_config`` (`FilterConfig`, JSON round trip included) and ``_filter`` (the
+algorithm).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,27 @@
-"""TODO docstring."""
+"""Offline posterior analysis of the pose (x, y, heading) with emcee (issue 8).
+
+The posterior of one block or of a window of blocks tied by odometry,
+``log p(theta | H_0..H_{K-1}) = log prior(theta) + sum_k log L(H_k | theta (+) u_k, G)``,
+with ``theta`` the pose at the first block's midpoint, ``u_k`` the exact arc composition of the
+odometry and ``L`` the sensor model of `localization.sensor` (unfloored). It is sampled in
+steps: the log posterior on a coarse grid over the prior, modes by persistence clustering,
+one emcee ensemble per mode (DEMove 0.8 + a corrected `SnookerMove` 0.2) run until the kept
+chain is long enough in autocorrelation times, and per mode a fine reference grid for mass,
+Hellinger distance, KL and HPD coverage.
+
+Entry points: `sample_posterior` (-> `PosteriorResult`) and `iter_posterior` (the same as a
+generator of `Progress` events) with `PosteriorSettings`; `window_from_run` /
+`sensor_window_log_likelihood` / `prior_from_tables` to build the likelihood and the
+`PosePrior`; `result_arrays` (the record written by ``omnisonar posterior``);
+`compare_cloud` (a particle filter's cloud against the posterior).
+
+Notes
+-----
+Private modules: ``_window`` (poses, odometry windows, window likelihood, prior), ``_grid``
+(grid posterior and its modes), ``_moves`` (walkers, moves, convergence), ``_sampler`` (the
+sampling steps), ``_diagnostics`` (summaries, HPD, comparison with grids and clouds),
+``_records`` (settings and result records).
+"""
 
 from __future__ import annotations
 

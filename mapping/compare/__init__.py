@@ -1,4 +1,24 @@
-"""TODO docstring."""
+"""The FDTD reference against the image-source engine (paper Sec. 3 against Sec. 2).
+
+The two engines hear the same scene differently in two known ways, and this package accounts
+for both: (1) grid dispersion and band -- `render_paths` rebuilds an image-source block path by
+path from its path table, band-limited like the FDTD's source (`grid_band`) and given each
+path's predicted dispersion along its own direction (`dispersion_phase`, `fdtd_length_m`);
+(2) paths the image-source model leaves out -- diffraction at free wall ends
+(`free_wall_ends`, `specular_path`, `edge_diffraction_paths`; geometry only, after Keller).
+The geometric truth of specular paths (`specular_echo`, `valid_wall_sequences`) is shared by
+the benchmark (``benchmarks/fdtd_paper.py``) and the tests.
+
+Entry points: `compare_block` (both engines on one block -> `BlockComparison`),
+`comparison_heatmaps`, `residual_waveform`, `correlation`; heat-map bookkeeping:
+`heatmap_angle_rad` (the angle a path shows in the eq. 1 heat map), `local_maxima`,
+`window_peak`, `nearest_prediction`.
+
+Notes
+-----
+Private modules: ``_block`` (the comparison of one block), ``_geometry`` (specular and
+edge-diffracted paths), ``_paths`` (band, dispersion and heat-map bookkeeping).
+"""
 
 from __future__ import annotations
 

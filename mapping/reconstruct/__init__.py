@@ -1,4 +1,25 @@
-"""TODO docstring."""
+"""Beyond the paper: inverting the back-projection (``build-map --method inverse``).
+
+The paper's map G (eq. 5) is a back-projection, the *adjoint* of a linear forward model that
+predicts heat maps from reflectors. This package solves that model instead: non-negative,
+l1-regularised least squares by FISTA over strengths of specular wall elements (O normal-axis
+orientations per cell), so observations compete for explanations and a mirror ghost that
+predicts echoes the other poses did not hear loses to the true wall.
+
+Entry points: `reconstruct_inverse` (heat maps + poses -> G and solver info) with its
+parameters `InverseParams`; the pieces: `observations_from_heatmaps` / `pool_heatmap`
+(floor-removed heat maps max-pooled into range bins, `Observations`), `build_operator`
+(`Operator`, ``y = A x``; `backproject_observations` is its adjoint summed over
+orientations, the paper's back-projection), the free-space and occlusion constraints
+(`free_radii`, `forbidden_unknowns`, `occluded`), `operator_norm_sq`, `fista_nonneg_l1`,
+`prune_speckle`.
+
+Notes
+-----
+Private modules: ``_observations`` (parameters, pooled observations, the Doppler point spread
+`doppler_kappa`), ``_operator`` (the sparse forward model and its constraints), ``_solver``
+(FISTA and the reconstruction).
+"""
 
 from __future__ import annotations
 
