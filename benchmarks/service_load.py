@@ -41,11 +41,10 @@ from mapping.scene import builtin_scene
 from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap
 from service.builds import simulate_default_run
-from service.engine import BlockInput, FilterSpec
 from service.localizer import LocalizationFactory
 from service.mapstore import MapStore
 from service.server import ServerProcess, rss_bytes
-from service.sessions import Session, write_checkpoint
+from service.sessions import BlockInput, FilterSpec, Session, write_checkpoint
 
 _HERE = Path(__file__).resolve().parent
 matplotlib.use("Agg")
@@ -83,7 +82,7 @@ def in_process_update_ms(maps: MapStore, run: Run, ckpt: Path,
     times, ck, ck_nosync = [], [], []
     for i in range(n + 3):
         k = i % run.n_blocks
-        blk = BlockInput(seq=i, samples=run.samples[k].astype(np.float64), fs_hz=40000.0,
+        blk = BlockInput(seq=i, samples=run.samples[k].astype(np.float64),
                          speed_m_s=float(run.speed_m_s[k]),
                          yaw_rate_rad_s=float(run.yaw_rate_rad_s[k]),
                          dt_s=0.0 if i == 0 else run.config.block_s)

@@ -19,13 +19,12 @@ from fastapi import FastAPI
 from starlette.concurrency import run_in_threadpool
 from starlette.types import Scope
 
-from service.engine import TrackerFactory
 from service.errors import BodyLimitMiddleware, install_handlers
 from service.jobs import JobRunner
 from service.mapstore import MapStore
 from service.routers import maps as maps_router
 from service.routers import sessions as sessions_router
-from service.sessions import SessionStore
+from service.sessions import SessionStore, TrackerFactory
 from service.settings import Settings, get_settings
 
 log = logging.getLogger("omnisonar.service")

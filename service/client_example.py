@@ -2,10 +2,10 @@
 
     python -m service.client_example --url http://127.0.0.1:8000 RUN.npz [--global]
 
-Each block of the run file is POSTed as raw little-endian float32 with its odometry; the
-answer is the filter's pose. When the run carries tracked poses, the error against them is
-printed too. This file is the README's client example; the demo (``omnisonar demo-api``)
-uses :func:`stream_run`.
+Each block of the run file is POSTed as raw little-endian float32 with its odometry in the
+query parameters; the answer is the filter's pose. When the run carries tracked poses, the
+error against them is printed too. This file is the README's client example; the demo
+(``omnisonar demo-api``) uses :func:`stream_run`.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from mapping.angles import pose_error
 from mapping.files import read_run
 from mapping.run import Run
 
@@ -70,11 +71,10 @@ def stream_run(base_url: str, run: Run, map_id: str = "default", particles: int 
             http.delete(f"/sessions/{sid}")
 
 
-def pose_error(est: dict[str, Any], truth: np.ndarray) -> tuple[float, float]:
-    """Position error (m) and absolute heading error (deg) of an estimate against a truth row."""
+def pose_of(est: dict[str, Any]) -> np.ndarray:
+    """``(x, y, yaw)`` of an estimate's JSON, for :func:`mapping.angles.pose_error`."""
     p = est["pose"]
-    d_yaw = math.remainder(p["yaw"] - float(truth[2]), 2 * math.pi)
-    return math.hypot(p["x"] - truth[0], p["y"] - truth[1]), abs(math.degrees(d_yaw))
+    return np.array([p["x"], p["y"], p["yaw"]], dtype=np.float64)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,8 +94,8 @@ def main(argv: list[str] | None = None) -> int:
         p = est["pose"]
         line = f"{k:4d} {p['x']:7.3f} {p['y']:7.3f} {p['yaw']:7.3f}"
         if np.all(np.isfinite(run.pose[k])):
-            e_m, e_deg = pose_error(est, run.pose[k])
-            line += f" {e_m:7.3f} {e_deg:8.2f}"
+            e_m, e_rad = pose_error(pose_of(est), run.pose[k])
+            line += f" {e_m:7.3f} {math.degrees(e_rad):8.2f}"
         print(line + f"  {est['converged']}")
     return 0
 

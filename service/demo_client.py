@@ -19,8 +19,10 @@ from typing import Any
 import httpx
 import numpy as np
 
+from localization.estimate import nees
+from mapping.angles import pose_error
 from service.builds import simulate_default_run
-from service.client_example import pose_error, stream_run
+from service.client_example import pose_of, stream_run
 from service.server import ServerProcess
 
 HELD_OUT_PATH = "paper-a"
@@ -89,27 +91,21 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
         rows = []
         for k, est, rtt in stream_run(srv.url, run, "default", particles, seed,
                                       start, beta):  # type: ignore[arg-type]
-            e_m, e_deg = pose_error(est, run.pose[k])
+            e_m, e_rad = pose_error(pose_of(est), run.pose[k])
+            e_deg = math.degrees(e_rad)
             t, p = run.pose[k], est["pose"]
             print(f"{k:4d} {t[0]:8.3f} {t[1]:7.3f} {math.degrees(t[2]):9.1f} | "
                   f"{p['x']:7.3f} {p['y']:7.3f} {math.degrees(p['yaw']):8.1f} | "
                   f"{e_m:6.3f} {e_deg:8.2f}  {'yes' if est['converged'] else ' no'} "
                   f"{1e3 * rtt:4.0f}", flush=True)
             rows.append({"seq": k, "truth": t.tolist(), "estimate": est, "err_m": e_m,
-                         "err_deg": e_deg, "rtt_s": rtt, "nees": nees(est, run.pose[k])})
+                         "err_deg": e_deg, "rtt_s": rtt,
+                         "nees": nees(pose_of(est), np.asarray(est["covariance"]),
+                                      run.pose[k])})
     summary = {**summarize(rows), "beta": beta}
     (work_dir / "track.json").write_text(json.dumps({"summary": summary, "track": rows}))
     print(json.dumps(summary, indent=1))
     return summary
-
-
-def nees(est: dict[str, Any], truth: np.ndarray) -> float:
-    """``e^T C^-1 e`` of an estimate's best-mode covariance against the truth (3 dof)."""
-    p = est["pose"]
-    e = np.array([float(truth[0]) - p["x"], float(truth[1]) - p["y"],
-                  math.remainder(float(truth[2]) - p["yaw"], 2 * math.pi)])
-    cov = np.asarray(est["covariance"], dtype=np.float64)
-    return float(e @ np.linalg.solve(cov + 1e-12 * np.eye(3), e))
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:

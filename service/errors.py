@@ -21,7 +21,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from service.jobs import JobNotFound
 from service.mapstore import MapExists, MapNotFound
 from service.schemas import FIELD_RANGES
-from service.sessions import SessionConflict, SessionLimit, SessionNotFound
+from service.sessions import InvalidSpec, SessionConflict, SessionLimit, SessionNotFound
 
 log = logging.getLogger("omnisonar.service")
 
@@ -97,6 +97,10 @@ def install_handlers(app: FastAPI) -> None:
     async def _client(_: Request, exc: ClientError) -> JSONResponse:
         return error_response(exc.status, exc.error, exc.detail, exc.field, exc.allowed,
                               headers=exc.headers)
+
+    @app.exception_handler(InvalidSpec)
+    async def _invalid_spec(_: Request, exc: InvalidSpec) -> JSONResponse:
+        return error_response(422, "validation", str(exc), exc.field, exc.allowed)
 
     @app.exception_handler(SessionNotFound)
     async def _no_session(_: Request, exc: SessionNotFound) -> JSONResponse:

@@ -1,5 +1,6 @@
 """The real tracker: a block through :func:`mapping.heatmap.doppler_heatmap` into a filter
-from ``localization``. Conversions only; every number comes from those packages.
+from ``localization``, the core's :class:`~localization.estimate.PoseEstimate` out. Every
+number comes from those packages; this module only wires them to the session store.
 
 One :class:`~localization.sensor.SensorTables` per map is built on first use and shared by
 all sessions on that map (read-only), rebuilt when the map file changes.
@@ -20,33 +21,8 @@ from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.sensor import SensorConfig, SensorTables, build_tables, validate_block
 from mapping.heatmap import HeatMap, doppler_heatmap
 from mapping.signal import SonarConfig
-from service.engine import BlockInput, EstimateOut, FilterSpec
 from service.mapstore import MapStore, map_config
-
-
-def estimate_out(est: PoseEstimate) -> EstimateOut:
-    """``localization`` estimate -> plain values."""
-
-    def mat(a: NDArray[np.float64]) -> tuple[tuple[float, float, float], ...]:
-        return tuple((float(r[0]), float(r[1]), float(r[2])) for r in np.asarray(a))
-
-    values = np.concatenate([np.ravel(est.pose), np.ravel(est.cov), np.ravel(est.cov_all),
-                             [est.ess]])
-    if not np.all(np.isfinite(values)):
-        # a numerical failure of the filter, not of the input: the store rolls the session
-        # back and the client gets a 500 naming it (JSON cannot carry NaN anyway)
-        raise FloatingPointError("the filter produced a non-finite estimate")
-    return EstimateOut(
-        pose=(float(est.pose[0]), float(est.pose[1]), float(est.pose[2])),
-        covariance=mat(est.cov),
-        modes=tuple((float(m.mean[0]), float(m.mean[1]), float(m.mean[2]), float(m.weight))
-                    for m in est.modes),
-        ess=float(est.ess), converged=bool(est.converged),
-        direction_observable=bool(est.direction_observable),
-        covariance_all=mat(est.cov_all),
-        extra={"model": est.model, "updated": bool(est.updated),
-               "likelihood_scale": float(est.likelihood_scale)},
-    )
+from service.sessions import BlockInput, FilterSpec, InvalidSpec
 
 
 def block_heatmap(block: BlockInput, config: SonarConfig) -> HeatMap | None:
@@ -62,54 +38,33 @@ def block_heatmap(block: BlockInput, config: SonarConfig) -> HeatMap | None:
     return doppler_heatmap(block.samples, block.speed_m_s, config, workers=1)
 
 
-class PFTracker:
-    """A :class:`~localization.particle_filter.ParticleFilter` behind the Tracker protocol."""
+class Localizer:
+    """A :class:`~localization.particle_filter.ParticleFilter` or the exact
+    :class:`~localization.grid_filter.GridFilter` as the store's
+    :class:`~service.sessions.Tracker`."""
 
-    def __init__(self, pf: ParticleFilter, tables: SensorTables, config: SonarConfig) -> None:
-        self.pf, self.tables, self.config = pf, tables, config
+    def __init__(self, filt: ParticleFilter | GridFilter, tables: SensorTables,
+                 config: SonarConfig) -> None:
+        self.filter, self.tables, self.config = filt, tables, config
 
-    def update(self, block: BlockInput) -> EstimateOut:
-        hm = block_heatmap(block, self.config)
-        est = self.pf.step(hm, block.speed_m_s, block.yaw_rate_rad_s,
-                           block.dt_s)
-        return estimate_out(est)
-
-    def reinit_global(self) -> None:
-        self.pf.reset_global()
-
-    def state_dict(self) -> dict[str, Any]:
-        return dict(self.pf.state_dict())
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.pf = ParticleFilter.from_state_dict(state, self.tables)
-
-    def particles(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        w = np.exp(self.pf.log_w - self.pf.log_w.max())
-        return self.pf.poses.copy(), w / w.sum()
-
-
-class GridTracker:
-    """The exact grid filter (:class:`~localization.grid_filter.GridFilter`) as a Tracker."""
-
-    def __init__(self, gf: GridFilter, tables: SensorTables, config: SonarConfig) -> None:
-        self.gf, self.tables, self.config = gf, tables, config
-
-    def update(self, block: BlockInput) -> EstimateOut:
-        hm = block_heatmap(block, self.config)
-        return estimate_out(self.gf.step(hm, block.speed_m_s, block.yaw_rate_rad_s,
-                                         block.dt_s))
+    def update(self, block: BlockInput) -> PoseEstimate:
+        return self.filter.step(block_heatmap(block, self.config), block.speed_m_s,
+                                block.yaw_rate_rad_s, block.dt_s)
 
     def reinit_global(self) -> None:
-        self.gf.reset_global()
+        self.filter.reset_global()
 
     def state_dict(self) -> dict[str, Any]:
-        return dict(self.gf.state_dict())
+        return dict(self.filter.state_dict())
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.gf = GridFilter.from_state_dict(state, self.tables)
+        self.filter = type(self.filter).from_state_dict(state, self.tables)
 
-    def particles(self) -> None:
-        return None  # a histogram, not a particle set
+    def particles(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        if not isinstance(self.filter, ParticleFilter):
+            return None  # a histogram, not a particle set
+        w = np.exp(self.filter.log_w - self.filter.log_w.max())
+        return self.filter.poses.copy(), w / w.sum()
 
 
 #: Largest grid-filter belief (cells x headings) a session may hold: 4e6 states = 32 MB,
@@ -118,7 +73,7 @@ MAX_GRID_STATES = 4_000_000
 
 
 class LocalizationFactory:
-    """Trackers on the maps of a :class:`~service.mapstore.MapStore`.
+    """Localizers on the maps of a :class:`~service.mapstore.MapStore`.
 
     Parameters
     ----------
@@ -153,31 +108,30 @@ class LocalizationFactory:
             tables = dataclasses.replace(tables, config=sensor)
         return tables, config
 
-    def create(self, map_id: str, spec: FilterSpec) -> PFTracker | GridTracker:
+    def create(self, map_id: str, spec: FilterSpec) -> Localizer:
+        """A new localizer; :class:`~service.sessions.InvalidSpec` names the field the filter
+        refuses (the request schema has already checked each field on its own)."""
+        if spec.kind not in ("pf", "grid"):
+            raise InvalidSpec("filter", f"filter must be 'pf' or 'grid', got {spec.kind!r}",
+                              "pf or grid")
         tables, config = self._session_tables(map_id, spec)
         pose = None if spec.initial_pose is None else np.asarray(spec.initial_pose)
         cov = None if spec.initial_covariance is None else np.asarray(spec.initial_covariance)
         if spec.kind == "grid":
             n_states = int(tables.free_mask.size) * tables.config.n_angles
             if n_states > MAX_GRID_STATES:
-                raise ValueError(f"filter 'grid' needs {n_states} states on map {map_id!r}; "
-                                 f"allowed <= {MAX_GRID_STATES} (use filter 'pf')")
+                raise InvalidSpec("filter", f"filter 'grid' needs {n_states} states on map "
+                                  f"{map_id!r}", f"<= {MAX_GRID_STATES} states (else 'pf')")
             try:
-                gf = GridFilter(tables, None, pose, cov)
+                return Localizer(GridFilter(tables, None, pose, cov), tables, config)
             except np.linalg.LinAlgError:
-                raise ValueError("initial_covariance must be invertible for filter 'grid'"
-                                 ) from None
-            return GridTracker(gf, tables, config)
-        if spec.kind != "pf":
-            raise ValueError(f"filter must be 'pf' or 'grid', got {spec.kind!r}")
+                raise InvalidSpec("initial_covariance", "initial_covariance must be invertible "
+                                  "for filter 'grid'", "a positive definite 3x3") from None
         rng = np.random.default_rng(spec.seed)
         pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles), rng, pose, cov)
-        return PFTracker(pf, tables, config)
+        return Localizer(pf, tables, config)
 
-    def restore(self, map_id: str, spec: FilterSpec,
-                state: dict[str, Any]) -> PFTracker | GridTracker:
+    def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> Localizer:
         tables, config = self._session_tables(map_id, spec)
-        if spec.kind == "grid":
-            return GridTracker(GridFilter.from_state_dict(state, tables), tables, config)
-        return PFTracker(ParticleFilter.from_state_dict(state, tables), tables, config)
-
+        cls = GridFilter if spec.kind == "grid" else ParticleFilter
+        return Localizer(cls.from_state_dict(state, tables), tables, config)

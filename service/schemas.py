@@ -120,7 +120,8 @@ class SessionCreate(_Strict):
     seed: int | None = Field(None, ge=0, le=2**63 - 1)
     initial_pose: Pose2D | None = Field(None, description="omit (or global=true) for global")
     initial_covariance: list[list[float]] | None = Field(
-        None, description="3x3 covariance of (x, y, yaw) in m^2, m*rad, rad^2"
+        None, description="3x3 covariance of (x, y, yaw) in m^2, m*rad, rad^2 (default with "
+        "initial_pose: 10 cm in x and y, 10 deg in yaw, independent)"
     )
     global_: bool = Field(False, alias="global", description="uniform over the mapped region")
     beta: float | None = Field(
@@ -160,7 +161,7 @@ def check_covariance(v: list[list[float]]) -> list[list[float]]:
         raise ValueError("initial_covariance entries must be within +-1e6")
     if not np.allclose(a, a.T, rtol=1e-9, atol=1e-12):
         raise ValueError("initial_covariance must be symmetric")
-    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
+    if np.linalg.eigvalsh(a).min() < -1e-12:  # the filters' own test, so they never refuse it
         raise ValueError("initial_covariance must be positive semi-definite")
     return [[float(x) for x in row] for row in a]
 
@@ -210,16 +211,37 @@ class SessionInfo(BaseModel):
     estimate: Estimate | None
 
 
+Seq = Annotated[int, Field(ge=0, le=MAX_SEQ, description="strictly increasing per session")]
+FsHz = Annotated[float, Field(gt=0, allow_inf_nan=False, description="must equal the map's fs")]
+Speed = Annotated[float, Field(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False,
+                               description="m/s, forward positive")]
+YawRate = Annotated[float, Field(ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S,
+                                 allow_inf_nan=False, description="rad/s, counter-clockwise")]
+Encoding = Literal["float32", "int16"]
+
+
+class BlockQuery(BaseModel):
+    """Query parameters of a raw (``application/octet-stream``) block: its odometry.
+
+    ``seq``, ``fs_hz`` and ``speed_m_s`` are required for raw blocks (the handler says which
+    is missing); a JSON block carries them in its body and takes no query parameters.
+    """
+
+    seq: Seq | None = None
+    fs_hz: FsHz | None = None
+    speed_m_s: Speed | None = None
+    yaw_rate_rad_s: YawRate = 0.0
+    encoding: Encoding = Field("float32", description="float32, or int16 (full scale 32768)")
+
+
 class BlockJSON(_Strict):
     """A block as JSON: the samples base64-encoded, the odometry alongside."""
 
-    seq: int = Field(ge=0, le=MAX_SEQ, description="strictly increasing per session")
-    fs_hz: float = Field(gt=0, allow_inf_nan=False, description="must equal the map's fs")
-    speed_m_s: float = Field(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False)
-    yaw_rate_rad_s: float = Field(
-        0.0, ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S, allow_inf_nan=False
-    )
-    encoding: Literal["float32", "int16"] = "float32"
+    seq: Seq
+    fs_hz: FsHz
+    speed_m_s: Speed
+    yaw_rate_rad_s: YawRate = 0.0
+    encoding: Encoding = "float32"
     samples_b64: str = Field(description="little-endian samples, base64 (RFC 4648)")
 
 

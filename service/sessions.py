@@ -7,13 +7,16 @@ committed only when the filter update succeeded *and* its checkpoint is on disk;
 failure the in-memory filter is restored from the snapshot taken before the update, so a
 rejected request leaves the session exactly as it was.
 
-Nothing here computes a pose: the :class:`~service.engine.Tracker` behind each session calls
-``mapping`` and ``localization``.
+Nothing here computes a pose: the :class:`Tracker` behind each session
+(:class:`service.localizer.Localizer`; a test double in the tests) calls ``mapping`` and
+``localization`` and returns the core's :class:`~localization.estimate.PoseEstimate`, which
+the store keeps as it is (the HTTP layer converts it once, into its response model).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import threading
@@ -21,15 +24,108 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from localization.estimate import Mode, PoseEstimate
 from mapping.files import atomic_savez
-from service.engine import BlockInput, EstimateOut, FilterSpec, Tracker, TrackerFactory, block_dt_s
+from mapping.signal import SonarConfig
 
-SESSION_FORMAT = "omnisonar-session-1"
+#: Written by this version; format 1 (the service's flat estimate) still loads.
+SESSION_FORMAT = "omnisonar-session-2"
+SESSION_FORMATS = ("omnisonar-session-1", SESSION_FORMAT)
+
+
+# ---- what a session is made of ------------------------------------------------------------
+@dataclass(frozen=True)
+class FilterSpec:
+    """What a session asked for at creation."""
+
+    kind: str = "pf"
+    particles: int = 2000
+    seed: int = 0
+    initial_pose: tuple[float, float, float] | None = None
+    initial_covariance: tuple[tuple[float, ...], ...] | None = None  # None: the core's default
+    beta: float | None = None       # sensor sharpness; None: the server's default
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> FilterSpec:
+        pose = d.get("initial_pose")
+        cov = d.get("initial_covariance")
+        return cls(
+            kind=str(d["kind"]), particles=int(d["particles"]), seed=int(d["seed"]),
+            initial_pose=None if pose is None else (float(pose[0]), float(pose[1]),
+                                                     float(pose[2])),
+            initial_covariance=None if cov is None else tuple(tuple(map(float, r)) for r in cov),
+            beta=None if d.get("beta") is None else float(d["beta"]),
+        )
+
+
+@dataclass(frozen=True)
+class BlockInput:
+    """One validated block: samples (B,) float64 (empty: predict only) and its odometry."""
+
+    seq: int
+    samples: NDArray[np.float64]
+    speed_m_s: float
+    yaw_rate_rad_s: float
+    dt_s: float = 0.0  # set by the store: previous committed block's midpoint to this one's
+
+
+#: Longest odometry step passed to a filter (localization.motion accepts dt <= 60 s).
+MAX_STEP_S = 60.0
+
+
+def block_dt_s(seq: int, last_seq: int | None, block_s: float) -> float:
+    """Time from the previous committed block's midpoint to block ``seq``'s (0 at first).
+
+    A gap in ``seq`` (lost blocks) lengthens the step; it is capped at :data:`MAX_STEP_S`.
+    """
+    if last_seq is None:
+        return 0.0
+    return min(float(seq - last_seq) * block_s, MAX_STEP_S)
+
+
+class Tracker(Protocol):
+    """One live filter on one map."""
+
+    config: SonarConfig
+
+    def update(self, block: BlockInput) -> PoseEstimate:
+        """Step the filter by one block; ``ValueError`` for a block it rejects."""
+        ...
+
+    def reinit_global(self) -> None: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def particles(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """``(poses (n, 3), weights (n,))`` or None when the filter has no particles."""
+        ...
+
+
+class TrackerFactory(Protocol):
+    """Makes trackers on stored maps; :class:`InvalidSpec` for a spec the filter refuses."""
+
+    def create(self, map_id: str, spec: FilterSpec) -> Tracker: ...
+
+    def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> Tracker: ...
+
+
+# ---- errors -------------------------------------------------------------------------------
+class InvalidSpec(ValueError):
+    """A session spec the filter refuses (422), naming the request field at fault."""
+
+    def __init__(self, field: str, detail: str, allowed: str | None = None) -> None:
+        super().__init__(detail)
+        self.field, self.allowed = field, allowed
 
 
 class SessionNotFound(KeyError):
@@ -61,7 +157,8 @@ class Session:
     last_active_at: float
     last_seq: int | None = None
     n_updates: int = 0
-    estimate: EstimateOut | None = None
+    estimate: PoseEstimate | None = None  # after the last committed block (None: none yet)
+    processing_ms: float = 0.0            # server time of that update
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def meta(self) -> dict[str, Any]:
@@ -74,8 +171,66 @@ class Session:
             "last_active_at": self.last_active_at,
             "last_seq": self.last_seq,
             "n_updates": self.n_updates,
-            "estimate": None if self.estimate is None else self.estimate.to_dict(),
+            "estimate": None if self.estimate is None else {
+                **estimate_to_json(self.estimate), "processing_ms": self.processing_ms},
         }
+
+
+def _floats(a: Any) -> Any:
+    return np.asarray(a, dtype=np.float64).tolist()
+
+
+def estimate_to_json(est: PoseEstimate) -> dict[str, Any]:
+    """Every field of a :class:`PoseEstimate` as JSON values (floats round-trip exactly)."""
+    return {
+        "pose": _floats(est.pose), "cov": _floats(est.cov),
+        "mean_all": _floats(est.mean_all), "cov_all": _floats(est.cov_all),
+        "modes": [{"weight": float(m.weight), "mean": _floats(m.mean), "cov": _floats(m.cov)}
+                  for m in est.modes],
+        "ess": float(est.ess), "converged": bool(est.converged),
+        "direction_observable": bool(est.direction_observable), "updated": bool(est.updated),
+        "model": str(est.model), "likelihood_scale": float(est.likelihood_scale),
+    }
+
+
+def estimate_from_json(d: dict[str, Any]) -> PoseEstimate:
+    """Inverse of :func:`estimate_to_json`; also reads format 1's flat estimate (``pose``,
+    ``covariance``, ``modes`` as ``[x, y, yaw, weight]``, ``extra``), which kept neither the
+    modes' covariances nor the mean of the whole set: those come back as NaN and the best
+    mode's mean (neither is reported)."""
+
+    def arr(v: Any) -> NDArray[np.float64]:
+        return np.array(v, dtype=np.float64)
+
+    if "mean_all" in d:
+        modes = tuple(Mode(weight=float(m["weight"]), mean=arr(m["mean"]), cov=arr(m["cov"]))
+                      for m in d["modes"])
+        return PoseEstimate(
+            pose=arr(d["pose"]), cov=arr(d["cov"]), mean_all=arr(d["mean_all"]),
+            cov_all=arr(d["cov_all"]), modes=modes, ess=float(d["ess"]),
+            converged=bool(d["converged"]), direction_observable=bool(d["direction_observable"]),
+            updated=bool(d["updated"]), model=str(d["model"]),
+            likelihood_scale=float(d["likelihood_scale"]))
+    extra = d.get("extra", {})
+    cov = arr(d["covariance"])
+    return PoseEstimate(
+        pose=arr(d["pose"]), cov=cov, mean_all=arr(d["pose"]),
+        cov_all=cov if d.get("covariance_all") is None else arr(d["covariance_all"]),
+        modes=tuple(Mode(weight=float(m[3]), mean=arr(m[:3]), cov=np.full((3, 3), math.nan))
+                    for m in d["modes"]),
+        ess=float(d["ess"]), converged=bool(d["converged"]),
+        direction_observable=bool(d["direction_observable"]),
+        updated=bool(extra.get("updated", True)), model=str(extra.get("model", "correlation")),
+        likelihood_scale=float(extra.get("likelihood_scale", 1.0)))
+
+
+def _check_finite(est: PoseEstimate) -> None:
+    values = np.concatenate([np.ravel(est.pose), np.ravel(est.cov), np.ravel(est.cov_all),
+                             [est.ess]])
+    if not np.all(np.isfinite(values)):
+        # a numerical failure of the filter, not of the input: the store rolls the session
+        # back and the client gets a 500 naming it (JSON cannot carry NaN anyway)
+        raise FloatingPointError("the filter produced a non-finite estimate")
 
 
 # ---- checkpoint encoding ------------------------------------------------------------------
@@ -137,8 +292,8 @@ def read_checkpoint(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
             data = {k: npz[k] for k in npz.files}
     except Exception as exc:
         raise ValueError(f"{path}: not a readable session checkpoint ({exc})") from exc
-    if str(data.get("format", "")) != SESSION_FORMAT:
-        raise ValueError(f"{path}: key 'format' must be {SESSION_FORMAT!r}")
+    if str(data.get("format", "")) not in SESSION_FORMATS:
+        raise ValueError(f"{path}: key 'format' must be one of {SESSION_FORMATS}")
     meta = json.loads(str(data["meta"]))
     state = unflatten_state(json.loads(str(data["state"])), data)
     return meta, state
@@ -157,7 +312,7 @@ class SessionStore:
     idle_s : float
         A session untouched for this long is expired by :meth:`expire`.
     factory : TrackerFactory
-        Builds and restores trackers (the link to ``localization``).
+        Builds and restores trackers (:class:`service.localizer.LocalizationFactory`).
     clock : callable
         Wall clock in seconds (injectable for tests).
     fsync : bool
@@ -251,11 +406,11 @@ class SessionStore:
         return gone
 
     # -- updates ------------------------------------------------------------------------
-    def update(self, session_id: str, block: BlockInput) -> tuple[int, EstimateOut]:
+    def update(self, session_id: str, block: BlockInput) -> tuple[int, PoseEstimate, float]:
         """Feed one block; commit (state + checkpoint) or leave the session untouched.
 
-        Returns the committed ``(seq, estimate)``, read under the session's lock (a later
-        request may already have moved the session on when the caller looks).
+        Returns the committed ``(seq, estimate, processing_ms)``, read under the session's
+        lock (a later request may already have moved the session on when the caller looks).
 
         Raises
         ------
@@ -268,7 +423,7 @@ class SessionStore:
                 raise SessionConflict(block.seq, session.last_seq)
             self._transact(session, lambda: self._apply(session, block))
             assert session.estimate is not None
-            return block.seq, session.estimate
+            return block.seq, session.estimate, session.processing_ms
 
     def reinit_global(self, session_id: str) -> Session:
         """Re-initialize the session's filter globally (kidnapped robot)."""
@@ -284,8 +439,8 @@ class SessionStore:
         t0 = time.perf_counter()
         dt = block_dt_s(block.seq, session.last_seq, session.tracker.config.block_s)
         est = session.tracker.update(replace(block, dt_s=dt))
-        est = est.with_processing_ms(1e3 * (time.perf_counter() - t0))
-        session.estimate = est
+        _check_finite(est)
+        session.estimate, session.processing_ms = est, 1e3 * (time.perf_counter() - t0)
         session.last_seq = block.seq
         session.n_updates += 1
 
@@ -296,14 +451,16 @@ class SessionStore:
     def _transact(self, session: Session, change: Callable[[], None]) -> None:
         """Run ``change`` then checkpoint; on any exception restore the session fully."""
         before_state = session.tracker.state_dict()
-        before = (session.estimate, session.last_seq, session.n_updates, session.last_active_at)
+        before = (session.estimate, session.processing_ms, session.last_seq, session.n_updates,
+                  session.last_active_at)
         try:
             change()
             session.last_active_at = self.clock()
             self._checkpoint(session)
         except BaseException:
             session.tracker.load_state_dict(before_state)
-            session.estimate, session.last_seq, session.n_updates, session.last_active_at = before
+            (session.estimate, session.processing_ms, session.last_seq, session.n_updates,
+             session.last_active_at) = before
             raise
 
     # -- persistence --------------------------------------------------------------------
@@ -340,7 +497,8 @@ class SessionStore:
                     created_at=float(meta["created_at"]),
                     last_active_at=max(float(meta["last_active_at"]), self.clock()),
                     last_seq=meta["last_seq"], n_updates=int(meta["n_updates"]),
-                    estimate=None if est is None else EstimateOut.from_dict(est),
+                    estimate=None if est is None else estimate_from_json(est),
+                    processing_ms=0.0 if est is None else float(est.get("processing_ms", 0.0)),
                 )
             except (ValueError, KeyError, TypeError) as exc:
                 skipped.append(f"{path.name}: {exc}")
@@ -350,7 +508,3 @@ class SessionStore:
             loaded.append(session.id)
         return loaded, skipped
 
-
-def spec_as_dict(spec: FilterSpec) -> dict[str, Any]:
-    """JSON-able form of a spec (helper for responses)."""
-    return asdict(spec)

@@ -14,21 +14,21 @@ import secrets
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from numpy.typing import NDArray
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
+from localization.estimate import PoseEstimate
+from mapping.angles import wrap_angle
 from mapping.signal import SonarConfig
 from service.deps import get_app_settings, get_maps, get_sessions
-from service.engine import BlockInput, EstimateOut, FilterSpec, wrap_angle
 from service.errors import ClientError, validation_response
 from service.mapstore import MapStore
 from service.schemas import (
-    MAX_SEQ,
-    MAX_SPEED_M_S,
-    MAX_YAW_RATE_RAD_S,
+    FIELD_RANGES,
     BlockJSON,
+    BlockQuery,
     ErrorBody,
     Estimate,
     Mode,
@@ -37,7 +37,7 @@ from service.schemas import (
     SessionCreate,
     SessionInfo,
 )
-from service.sessions import Session, SessionStore
+from service.sessions import BlockInput, FilterSpec, Session, SessionStore
 from service.settings import Settings
 
 router = APIRouter(tags=["sessions"])
@@ -47,24 +47,26 @@ Store = Annotated[SessionStore, Depends(get_sessions)]
 _E = {"model": ErrorBody}
 
 
-# ---- conversions --------------------------------------------------------------------------
-def estimate_model(session_id: str, seq: int | None, est: EstimateOut) -> Estimate:
-    """Core estimate -> response model (yaw wrapped to (-pi, pi])."""
+# ---- the one conversion of the core's estimate --------------------------------------------
+def estimate_model(session_id: str, seq: int | None, est: PoseEstimate,
+                   processing_ms: float) -> Estimate:
+    """``localization``'s :class:`PoseEstimate` -> response model (yaw wrapped to (-pi, pi];
+    the 3x3 covariance also laid out as ROS's row-major 6x6, z/roll/pitch zero, as AMCL)."""
 
-    def pose(x: float, y: float, yaw: float) -> Pose2D:
-        return Pose2D.model_construct(x=float(x), y=float(y), yaw=wrap_angle(yaw))
+    def pose(p: NDArray[np.float64]) -> Pose2D:
+        return Pose2D.model_construct(x=float(p[0]), y=float(p[1]), yaw=float(wrap_angle(p[2])))
 
+    cov = np.asarray(est.cov, dtype=np.float64)
+    ros = np.zeros((6, 6))
+    ros[np.ix_([0, 1, 5], [0, 1, 5])] = cov
     return Estimate(
-        session_id=session_id, seq=seq, pose=pose(*est.pose),
-        covariance=[list(r) for r in est.covariance],
-        covariance_ros=est.covariance_ros(),
-        covariance_all=None if est.covariance_all is None else [list(r)
-                                                                 for r in est.covariance_all],
-        modes=[Mode(pose=pose(m[0], m[1], m[2]), weight=float(m[3])) for m in est.modes],
+        session_id=session_id, seq=seq, pose=pose(est.pose), covariance=cov.tolist(),
+        covariance_ros=ros.ravel().tolist(),
+        covariance_all=np.asarray(est.cov_all, dtype=np.float64).tolist(),
+        modes=[Mode(pose=pose(m.mean), weight=float(m.weight)) for m in est.modes],
         ess=float(est.ess), converged=bool(est.converged),
         direction_observable=bool(est.direction_observable),
-        likelihood_scale=float(est.extra.get("likelihood_scale", 1.0)),
-        processing_ms=float(est.processing_ms),
+        likelihood_scale=float(est.likelihood_scale), processing_ms=float(processing_ms),
     )
 
 
@@ -75,7 +77,8 @@ def session_info(store: SessionStore, s: Session) -> SessionInfo:
         created_at=s.created_at,
         last_active_at=s.last_active_at, expires_in_s=store.expires_in_s(s),
         last_seq=s.last_seq, n_updates=s.n_updates,
-        estimate=None if s.estimate is None else estimate_model(s.id, s.last_seq, s.estimate),
+        estimate=None if s.estimate is None else estimate_model(s.id, s.last_seq, s.estimate,
+                                                                s.processing_ms),
     )
 
 
@@ -93,18 +96,13 @@ def create_session(
                           "particles", f"10 <= particles <= {cfg.max_particles}")
     _require_map(maps, req.map_id)
     seed = req.seed if req.seed is not None else secrets.randbits(63)
-    pose = None if req.initial_pose is None else (req.initial_pose.x, req.initial_pose.y,
-                                                   wrap_angle(req.initial_pose.yaw))
+    pose = None if req.initial_pose is None else (
+        req.initial_pose.x, req.initial_pose.y, float(wrap_angle(req.initial_pose.yaw)))
     cov = req.initial_covariance
-    if pose is not None and cov is None:
-        cov = [[0.1**2, 0, 0], [0, 0.1**2, 0], [0, 0, math.radians(10) ** 2]]
     spec = FilterSpec(kind=req.filter, particles=req.particles, seed=seed, initial_pose=pose,
                       initial_covariance=None if cov is None else tuple(tuple(r) for r in cov),
                       beta=req.beta)
-    try:
-        s = store.create(req.map_id, spec)
-    except ValueError as exc:  # the filter refused the parameters (e.g. pose off the map)
-        raise ClientError(422, "validation", str(exc), _field_of(exc), None) from None
+    s = store.create(req.map_id, spec)  # InvalidSpec (422) names a field the filter refuses
     response.headers["Location"] = f"/sessions/{s.id}"
     return session_info(store, s)
 
@@ -119,15 +117,6 @@ def _require_map(maps: MapStore, map_id: str) -> None:
                           "map_id", None, headers={"Retry-After": "30"})
     raise ClientError(422, "validation", f"no map {map_id!r}", "map_id",
                       f"one of {maps.ids()}")
-
-
-def _field_of(exc: ValueError) -> str | None:
-    text = str(exc)
-    for name in ("initial_pose", "initial_covariance", "particles", "seed", "map_id", "filter",
-                 "beta"):
-        if name in text:
-            return name
-    return None
 
 
 @router.get("/sessions/{session_id}", response_model=SessionInfo, responses={404: _E})
@@ -173,7 +162,7 @@ def get_particles(
     idx = np.unique(np.linspace(0, n - 1, min(max_, n)).round().astype(np.int64))
     return Particles(
         n_total=n, x=poses[idx, 0].tolist(), y=poses[idx, 1].tolist(),
-        yaw=[wrap_angle(a) for a in poses[idx, 2]], weight=weights[idx].tolist(),
+        yaw=wrap_angle(poses[idx, 2]).tolist(), weight=weights[idx].tolist(),
     )
 
 
@@ -183,10 +172,12 @@ _BLOCK_BODY: dict[str, Any] = {
         "required": True,
         "description": (
             "One block of B microphone samples (B = the map's SonarConfig.block_samples, "
-            "40920 by default). Either raw little-endian samples (application/octet-stream; "
-            "encoding float32 or int16 (full scale 32768); seq, fs_hz, speed_m_s and "
-            "yaw_rate_rad_s as query parameters or X-Omnisonar-* headers) or JSON with "
-            "base64 samples."
+            "40920 by default), in one of two forms. Raw little-endian samples "
+            "(application/octet-stream): the odometry and encoding go in the query "
+            "parameters (seq, fs_hz and speed_m_s required; yaw_rate_rad_s default 0; "
+            "encoding float32 or int16, full scale 32768). JSON (application/json): "
+            "everything in the body, the samples base64-encoded, no query parameters. "
+            "An empty raw body means no sonar block: the filter predicts only."
         ),
         "content": {
             "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
@@ -195,30 +186,15 @@ _BLOCK_BODY: dict[str, Any] = {
     }
 }
 
+#: Query parameters a raw block must carry.
+_REQUIRED_QUERY = ("seq", "fs_hz", "speed_m_s")
+
 
 @router.post("/sessions/{session_id}/blocks", response_model=Estimate,
              openapi_extra=_BLOCK_BODY,
              responses={404: _E, 409: _E, 413: _E, 415: _E, 422: _E})
-async def post_block(
-    session_id: SessionIdPath,
-    request: Request,
-    store: Store,
-    seq: Annotated[int | None, Query(ge=0, le=MAX_SEQ)] = None,
-    fs_hz: Annotated[float | None, Query(gt=0, allow_inf_nan=False)] = None,
-    speed_m_s: Annotated[float | None, Query(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S,
-                                             allow_inf_nan=False)] = None,
-    yaw_rate_rad_s: Annotated[float | None, Query(ge=-MAX_YAW_RATE_RAD_S,
-                                                  le=MAX_YAW_RATE_RAD_S,
-                                                  allow_inf_nan=False)] = None,
-    encoding: Annotated[str | None, Query(pattern="^(float32|int16)$")] = None,
-    x_omnisonar_seq: Annotated[int | None, Header(ge=0, le=MAX_SEQ)] = None,
-    x_omnisonar_fs_hz: Annotated[float | None, Header(gt=0, allow_inf_nan=False)] = None,
-    x_omnisonar_speed_m_s: Annotated[float | None, Header(
-        ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False)] = None,
-    x_omnisonar_yaw_rate_rad_s: Annotated[float | None, Header(
-        ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S, allow_inf_nan=False)] = None,
-    x_omnisonar_encoding: Annotated[str | None, Header(pattern="^(float32|int16)$")] = None,
-) -> Estimate:
+async def post_block(session_id: SessionIdPath, request: Request, store: Store,
+                     query: Annotated[BlockQuery, Query()]) -> Estimate:
     """Feed one block (with its odometry) to the session's filter; returns the estimate.
 
     A ``seq`` not greater than the last committed one is answered 409 and changes nothing;
@@ -227,46 +203,37 @@ async def post_block(
     s = store.get(session_id)  # 404 before reading a large body
     body = await request.body()
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    odo: BlockJSON | BlockQuery
     if ctype == "application/json":
+        if query.model_fields_set:
+            name = min(query.model_fields_set)
+            raise ClientError(422, "validation", f"a JSON block carries {name} in its body, "
+                              "not in the query", name, "no query parameters with JSON")
         try:
-            blk = BlockJSON.model_validate_json(body)
+            odo = BlockJSON.model_validate_json(body)
         except ValidationError as exc:
             return validation_response(exc.errors())  # type: ignore[return-value]
-        raw, enc = _b64(blk.samples_b64), str(blk.encoding)
-        params = (blk.seq, blk.fs_hz, blk.speed_m_s, blk.yaw_rate_rad_s)
+        raw = _b64(odo.samples_b64)
     elif ctype in ("application/octet-stream", ""):
-        raw = body
-        enc = encoding or x_omnisonar_encoding or "float32"
-        params = (
-            _need("seq", seq, x_omnisonar_seq), _need("fs_hz", fs_hz, x_omnisonar_fs_hz),
-            _need("speed_m_s", speed_m_s, x_omnisonar_speed_m_s),
-            _first(yaw_rate_rad_s, x_omnisonar_yaw_rate_rad_s, 0.0),
-        )
+        for name in _REQUIRED_QUERY:
+            if getattr(query, name) is None:
+                raise ClientError(422, "validation", f"{name} is required", name,
+                                  f"query parameter ?{name}=: {FIELD_RANGES[name]}")
+        odo, raw = query, body
     else:
         raise ClientError(415, "unsupported_media_type", f"content type {ctype!r}",
                           "content-type", "application/octet-stream or application/json")
-    samples = _decode(raw, enc, s.tracker.config)
-    block = BlockInput(seq=int(params[0]), samples=samples, fs_hz=float(params[1]),
-                       speed_m_s=float(params[2]), yaw_rate_rad_s=float(params[3]))
-    _check_fs(block.fs_hz, s.tracker.config)
+    assert odo.seq is not None and odo.fs_hz is not None and odo.speed_m_s is not None
+    samples = _decode(raw, odo.encoding, s.tracker.config)
+    _check_fs(odo.fs_hz, s.tracker.config)
+    block = BlockInput(seq=odo.seq, samples=samples, speed_m_s=odo.speed_m_s,
+                       yaw_rate_rad_s=odo.yaw_rate_rad_s)
     try:
-        seq_done, est = await run_in_threadpool(store.update, session_id, block)
-    except ValueError as exc:  # the core rejected the block; the session is unchanged
+        seq_done, est, ms = await run_in_threadpool(store.update, session_id, block)
+    except ValueError as exc:  # the filter rejected the block; the session is unchanged
         raise ClientError(422, "validation", f"block rejected: {exc}", "samples",
                           None) from None
-    return estimate_model(session_id, seq_done, est)
-
-
-def _first(a: Any, b: Any, default: Any) -> Any:
-    return a if a is not None else (b if b is not None else default)
-
-
-def _need(name: str, query: Any, header: Any) -> Any:
-    v = _first(query, header, None)
-    if v is None:
-        raise ClientError(422, "validation", f"{name} is required (query or header)", name,
-                          f"query ?{name}= or header X-Omnisonar-{name.replace('_', '-')}")
-    return v
+    return estimate_model(session_id, seq_done, est, ms)
 
 
 def _b64(text: str) -> bytes:

@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from localization.estimate import Mode, PoseEstimate
 from mapping.signal import SonarConfig
-from service.engine import BlockInput, EstimateOut, FilterSpec
+from service.sessions import BlockInput, FilterSpec, InvalidSpec
 
 
 class OdometryTracker:
@@ -28,7 +29,7 @@ class OdometryTracker:
         self.rng_state: Any = rng.bit_generator.state
         self.fail_after_mutation = False
 
-    def update(self, block: BlockInput) -> EstimateOut:
+    def update(self, block: BlockInput) -> PoseEstimate:
         rng = np.random.default_rng()
         rng.bit_generator.state = self.rng_state
         dt = block.dt_s
@@ -41,15 +42,13 @@ class OdometryTracker:
             raise ValueError("samples out of range (test double)")
         return self.estimate(abs(block.speed_m_s) > 0.004)
 
-    def estimate(self, observable: bool = True) -> EstimateOut:
+    def estimate(self, observable: bool = True) -> PoseEstimate:
         m = self.poses.mean(axis=0)
         cov = np.cov(self.poses.T)
-        c = tuple(tuple(float(v) for v in row) for row in cov)
-        return EstimateOut(
-            pose=(float(m[0]), float(m[1]), float(m[2])), covariance=c,  # type: ignore[arg-type]
-            modes=((float(m[0]), float(m[1]), float(m[2]), 1.0),), ess=float(self.poses.shape[0]),
-            converged=True, direction_observable=observable,
-        )
+        return PoseEstimate(
+            pose=m, cov=cov, mean_all=m, cov_all=cov, modes=(Mode(1.0, m, cov),),
+            ess=float(self.poses.shape[0]), converged=True, direction_observable=observable,
+            updated=True, model="odometry")
 
     def reinit_global(self) -> None:
         rng = np.random.default_rng()
@@ -82,7 +81,7 @@ class OdometryFactory:
 
     def _check(self, map_id: str) -> None:
         if self.map_ids is not None and map_id not in self.map_ids:
-            raise ValueError(f"map_id {map_id!r} unknown")
+            raise InvalidSpec("map_id", f"map_id {map_id!r} unknown")
 
     def create(self, map_id: str, spec: FilterSpec) -> OdometryTracker:
         self._check(map_id)

@@ -225,13 +225,33 @@ def test_blocks_in_three_encodings(client: TestClient) -> None:
         "samples_b64": base64.b64encode(noise_block(2).tobytes()).decode()})
     assert r.status_code == 200, r.text
     check_estimate(r.json(), 2)
-    hdr = {"content-type": "application/octet-stream", "x-omnisonar-seq": "3",
-           "x-omnisonar-fs-hz": str(CFG.fs_hz), "x-omnisonar-speed-m-s": "0.2"}
-    r = client.post(f"/sessions/{sid}/blocks", content=noise_block(3).tobytes(), headers=hdr)
+    r = post_raw(client, sid, 3, noise_block(3).tobytes(), yaw_rate_rad_s=-0.1)
     assert r.status_code == 200, r.text
     check_estimate(r.json(), 3)
     info = client.get(f"/sessions/{sid}").json()
     assert info["last_seq"] == 3 and info["n_updates"] == 4 and info["estimate"]["seq"] == 3
+
+
+def test_one_way_to_send_each_field(client: TestClient, settings: Settings) -> None:
+    """Raw blocks take their odometry as query parameters only (the X-Omnisonar-* headers
+    are gone), JSON blocks in the body only; either mistake is a 422 naming the field."""
+    sid = new_session(client)
+    before = snapshot(client, settings, sid)
+    hdr = {"content-type": "application/octet-stream", "x-omnisonar-seq": "0",
+           "x-omnisonar-fs-hz": str(CFG.fs_hz), "x-omnisonar-speed-m-s": "0.2"}
+    r = client.post(f"/sessions/{sid}/blocks", content=noise_block(0).tobytes(), headers=hdr)
+    assert r.status_code == 422 and r.json()["field"] == "seq", r.text
+    assert "?seq=" in r.json()["allowed"]
+    r = client.post(f"/sessions/{sid}/blocks", params={"seq": 0, "fs_hz": CFG.fs_hz},
+                    content=noise_block(0).tobytes(),
+                    headers={"content-type": "application/octet-stream"})
+    assert r.status_code == 422 and r.json()["field"] == "speed_m_s", r.text
+    body = {"seq": 0, "fs_hz": CFG.fs_hz, "speed_m_s": 0.2,
+            "samples_b64": base64.b64encode(noise_block(0).tobytes()).decode()}
+    r = client.post(f"/sessions/{sid}/blocks", json=body, params={"encoding": "int16"})
+    assert r.status_code == 422 and r.json()["field"] == "encoding", r.text
+    assert snapshot(client, settings, sid) == before
+    assert client.post(f"/sessions/{sid}/blocks", json=body).status_code == 200
 
 
 def test_empty_block_predicts_only(client: TestClient) -> None:
@@ -397,8 +417,29 @@ def test_openapi_documents_both_block_bodies(client: TestClient) -> None:
     assert "samples_b64" in body["application/json"]["schema"]["properties"]
     params = {p["name"] for p in spec["paths"]["/sessions/{session_id}/blocks"]["post"]
               ["parameters"]}
-    assert {"seq", "fs_hz", "speed_m_s", "yaw_rate_rad_s", "x-omnisonar-seq"} <= params
+    assert params == {"session_id", "seq", "fs_hz", "speed_m_s", "yaw_rate_rad_s", "encoding"}
     assert "application/octet-stream" in spec["paths"]["/maps"]["post"]["requestBody"]["content"]
+
+
+def test_estimate_model_is_the_one_conversion() -> None:
+    """Core PoseEstimate -> response: yaw wrapped, modes, and the ROS 6x6 layout (x, y, z,
+    roll, pitch, yaw; z/roll/pitch rows and columns zero, as AMCL)."""
+    from localization.estimate import Mode, PoseEstimate
+    from service.routers.sessions import estimate_model
+
+    cov = np.array([[1.0, 0.1, 0.2], [0.1, 2.0, 0.3], [0.2, 0.3, 3.0]])
+    est = PoseEstimate(pose=np.array([1.0, 2.0, 3 * math.pi]), cov=cov, mean_all=np.zeros(3),
+                       cov_all=2 * cov, modes=(Mode(1.0, np.array([1.0, 2.0, -math.pi]), cov),),
+                       ess=5.0, converged=False, direction_observable=True, updated=True,
+                       model="correlation", likelihood_scale=0.5)
+    e = estimate_model("s", 4, est, 7.0)
+    assert e.pose.yaw == pytest.approx(math.pi) and e.modes[0].pose.yaw == math.pi
+    c6 = np.asarray(e.covariance_ros).reshape(6, 6)
+    assert c6[0, 0] == 1.0 and c6[1, 1] == 2.0 and c6[5, 5] == 3.0
+    assert c6[0, 5] == 0.2 and c6[5, 1] == 0.3 and c6[0, 1] == 0.1
+    assert np.all(c6[2:5, :] == 0) and np.all(c6[:, 2:5] == 0)
+    assert e.covariance == cov.tolist() and e.covariance_all == (2 * cov).tolist()
+    assert (e.seq, e.ess, e.likelihood_scale, e.processing_ms) == (4, 5.0, 0.5, 7.0)
 
 
 def test_grid_filter_session(client: TestClient, settings: Settings) -> None:

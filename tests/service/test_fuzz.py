@@ -110,7 +110,7 @@ def test_fuzz_create_session(client: TestClient, body: Any, extra: dict[str, Any
 @given(params=st.dictionaries(st.sampled_from(["seq", "fs_hz", "speed_m_s", "yaw_rate_rad_s",
                                                "encoding", "other"]), query_values, max_size=3),
        headers=st.dictionaries(st.sampled_from(["x-omnisonar-seq", "x-omnisonar-fs-hz",
-                                                "x-omnisonar-speed-m-s", "x-omnisonar-encoding"]),
+                                                "x-forwarded-for", "accept"]),
                                st.text("0123456789.-eainf", max_size=8), max_size=3),
        ctype=st.sampled_from(["application/octet-stream", "application/json", "text/plain", "",
                               "application/json; charset=utf-8", "multipart/form-data"]),

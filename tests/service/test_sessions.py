@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -10,13 +11,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mapping.files import atomic_savez
 from mapping.signal import SonarConfig
-from service.engine import BlockInput, EstimateOut, FilterSpec, wrap_angle
 from service.sessions import (
+    BlockInput,
+    FilterSpec,
+    InvalidSpec,
     SessionConflict,
     SessionLimit,
     SessionNotFound,
     SessionStore,
+    estimate_from_json,
+    estimate_to_json,
     flatten_state,
     read_checkpoint,
     unflatten_state,
@@ -30,8 +36,7 @@ def _block(seq: int, speed: float = 0.2, yaw_rate: float = 0.0, bad: bool = Fals
     x = np.zeros(CFG.block_samples)
     if bad:
         x[0] = 1e6
-    return BlockInput(seq=seq, samples=x, fs_hz=CFG.fs_hz, speed_m_s=speed,
-                      yaw_rate_rad_s=yaw_rate)
+    return BlockInput(seq=seq, samples=x, speed_m_s=speed, yaw_rate_rad_s=yaw_rate)
 
 
 def _store(tmp_path: Path, **kw: object) -> tuple[SessionStore, OdometryFactory]:
@@ -90,7 +95,7 @@ def test_failure_after_mutation_is_rolled_back(tmp_path: Path) -> None:
     assert path.read_bytes() == before_file
     np.testing.assert_array_equal(s.tracker.state_dict()["poses"], before["poses"])
     assert s.tracker.state_dict()["rng"] == before["rng"]
-    assert s.last_seq == 0 and s.n_updates == 1 and s.estimate == est_before
+    assert s.last_seq == 0 and s.n_updates == 1 and s.estimate is est_before
     store.update(s.id, _block(1))  # the same seq is still free
     assert s.last_seq == 1
 
@@ -105,7 +110,9 @@ def test_reload_restores_sessions_exactly(tmp_path: Path) -> None:
     assert loaded == [s.id] and skipped == []
     s2 = store2.get(s.id)
     assert (s2.last_seq, s2.n_updates, s2.spec) == (2, 3, SPEC)
-    assert s2.estimate == s.estimate
+    assert s.estimate is not None and s2.estimate is not None
+    assert estimate_to_json(s2.estimate) == estimate_to_json(s.estimate)
+    assert s2.processing_ms == s.processing_ms
     # both continue identically (the rng state travelled with the checkpoint)
     store.update(s.id, _block(3, speed=0.1, yaw_rate=0.2))
     store2.update(s.id, _block(3, speed=0.1, yaw_rate=0.2))
@@ -188,28 +195,66 @@ def test_flatten_roundtrip(state: dict[str, object]) -> None:
     assert same(state, back)
 
 
-@given(st.floats(-1e6, 1e6, allow_nan=False))
-def test_wrap_angle_range(a: float) -> None:
-    w = wrap_angle(a)
-    assert -math.pi < w <= math.pi
-    assert math.isclose(math.cos(w), math.cos(a), abs_tol=1e-6)
-    assert math.isclose(math.sin(w), math.sin(a), abs_tol=1e-6)
+def test_estimate_json_roundtrip_is_exact(tmp_path: Path) -> None:
+    store, _ = _store(tmp_path)
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0, speed=0.3, yaw_rate=0.1))
+    assert s.estimate is not None
+    d = estimate_to_json(s.estimate)
+    back = estimate_from_json(json.loads(json.dumps(d)))
+    assert estimate_to_json(back) == d
+    np.testing.assert_array_equal(back.modes[0].cov, s.estimate.modes[0].cov)
 
 
-def test_wrap_angle_edges() -> None:
-    assert wrap_angle(-math.pi) == math.pi and wrap_angle(math.pi) == math.pi
-    assert wrap_angle(3 * math.pi) == pytest.approx(math.pi)
+def test_format_1_checkpoint_still_loads(tmp_path: Path) -> None:
+    """A checkpoint written before the store kept the core's estimate (format 1: the
+    service's flat estimate) loads with the estimate it reported and continues."""
+    store, _ = _store(tmp_path)
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0))
+    state = s.tracker.state_dict()
+    old_est = {"pose": [1.0, 2.0, 3.0], "covariance": np.diag([1.0, 2.0, 3.0]).tolist(),
+               "modes": [[1.0, 2.0, 3.0, 0.75], [0.0, 0.0, -1.0, 0.25]], "ess": 40.0,
+               "converged": True, "direction_observable": False,
+               "covariance_all": np.diag([4.0, 5.0, 6.0]).tolist(), "processing_ms": 12.5,
+               "extra": {"model": "range", "updated": True, "likelihood_scale": 0.5}}
+    meta = {**s.meta(), "estimate": old_est}
+    arrays, tree = flatten_state(state)
+    atomic_savez(tmp_path / "sessions" / f"{s.id}.npz",
+                 {"format": np.array("omnisonar-session-1"), "meta": np.array(json.dumps(meta)),
+                  "state": np.array(json.dumps(tree)), **arrays})
+    store2, _ = _store(tmp_path)
+    assert store2.reload() == ([s.id], [])
+    est = store2.get(s.id).estimate
+    assert est is not None and store2.get(s.id).processing_ms == 12.5
+    assert est.pose.tolist() == [1.0, 2.0, 3.0] and est.cov[2, 2] == 3.0
+    assert est.cov_all[0, 0] == 4.0 and est.likelihood_scale == 0.5 and est.model == "range"
+    assert [(m.weight, m.mean.tolist()) for m in est.modes] == [(0.75, [1.0, 2.0, 3.0]),
+                                                                 (0.25, [0.0, 0.0, -1.0])]
+    np.testing.assert_array_equal(store2.get(s.id).tracker.state_dict()["poses"],
+                                  state["poses"])
+    store2.update(s.id, _block(1))
+    assert store2.get(s.id).last_seq == 1
 
 
-def test_covariance_ros_layout() -> None:
-    cov = ((1.0, 0.1, 0.2), (0.1, 2.0, 0.3), (0.2, 0.3, 3.0))
-    est = EstimateOut(pose=(0, 0, 0), covariance=cov, modes=(), ess=1.0, converged=False,
-                      direction_observable=False)
-    c6 = np.asarray(est.covariance_ros()).reshape(6, 6)
-    assert c6[0, 0] == 1.0 and c6[1, 1] == 2.0 and c6[5, 5] == 3.0
-    assert c6[0, 5] == 0.2 and c6[5, 1] == 0.3 and c6[0, 1] == 0.1
-    assert np.all(c6[2:5, :] == 0) and np.all(c6[:, 2:5] == 0)
-    assert EstimateOut.from_dict(est.to_dict()) == est
+def test_non_finite_estimate_is_not_committed(tmp_path: Path) -> None:
+    store, fac = _store(tmp_path)
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0))
+    path = tmp_path / "sessions" / f"{s.id}.npz"
+    before_file, est = path.read_bytes(), s.estimate
+    fac.created[-1].poses[0, 0] = math.nan  # a numerical failure inside the filter
+    with pytest.raises(FloatingPointError):
+        store.update(s.id, _block(1))
+    assert path.read_bytes() == before_file
+    assert s.last_seq == 0 and s.n_updates == 1 and s.estimate is est
+
+
+def test_factory_refusal_names_the_field() -> None:
+    store = SessionStore(None, 4, 60.0, OdometryFactory({"m"}))
+    with pytest.raises(InvalidSpec) as err:
+        store.create("other", SPEC)
+    assert err.value.field == "map_id" and len(store) == 0
 
 
 def test_same_seq_from_many_threads_commits_once(tmp_path: Path) -> None:

@@ -19,10 +19,11 @@ import httpx
 import numpy as np
 import pytest
 
+from mapping.angles import pose_error
 from mapping.files import write_map
 from mapping.run import Run
 from service.builds import simulate_default_run
-from service.client_example import pose_error, stream_run
+from service.client_example import pose_of, stream_run
 from service.server import ServerProcess
 from tests.service.test_app import raster_map
 
@@ -50,9 +51,9 @@ def test_stream_run_end_to_end(run: Run, maps_dir: Path) -> None:
                                 initial_pose=tuple(run.pose[0])))  # type: ignore[arg-type]
         assert httpx.get(f"{srv.url}/health").json()["sessions"] == 0  # closed by the client
     assert [k for k, _, _ in track] == list(range(N_BLOCKS))
-    errs = [pose_error(est, run.pose[k]) for k, est, _ in track]
-    final_m, final_deg = errs[-1]
-    assert final_m < 0.10 and final_deg < 5.0, errs
+    errs = [pose_error(pose_of(est), run.pose[k]) for k, est, _ in track]
+    final_m, final_rad = errs[-1]
+    assert final_m < 0.10 and final_rad < math.radians(5.0), errs
     assert max(e for e, _ in errs) < 0.15
     assert all(est["seq"] == k for k, est, _ in track)
 
@@ -115,8 +116,8 @@ def test_kill_mid_run_and_resume(run: Run, maps_dir: Path) -> None:
     np.testing.assert_allclose([a["pose"][k] for k in "xy"] + [a["pose"]["yaw"]],
                                [b["pose"][k] for k in "xy"] + [b["pose"]["yaw"]], atol=1e-12)
     np.testing.assert_allclose(a["covariance"], b["covariance"], atol=1e-15)
-    e_m, e_deg = pose_error(a, run.pose[-1])
-    assert e_m < 0.10 and e_deg < 5.0 and not math.isnan(e_m)
+    e_m, e_rad = pose_error(pose_of(a), run.pose[-1])
+    assert e_m < 0.10 and e_rad < math.radians(5.0) and not math.isnan(e_m)
 
 
 def _safe_post(url: str, sid: str, run: Run, k: int) -> None:
