@@ -5,7 +5,8 @@ Public faces (import from these, never from a private ``_name`` module):
 - `localization.motion`: odometry motion model (AMCL alpha1-4);
 - `localization.sensor`: likelihood of a heat map given a pose and G (config, lookup tables,
   measurement, two models);
-- `localization.resampling`: log-weights and systematic resampling (numba kernel; its numpy twin lives in the tests);
+- `localization.resampling`: log-weights and systematic resampling (numba kernel; numpy
+  twin in the tests);
 - `localization.particle_filter`: `ParticleFilter` (augmented MCL, KLD, checkpoints),
   `FilterConfig`, `run_filter`;
 - `localization.calibration`: `calibrate_beta`, the sensor sharpness that makes the NEES
