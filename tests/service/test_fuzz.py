@@ -24,7 +24,7 @@ from mapping.files import write_map
 from mapping.signal import SonarConfig
 from service.app import create_app
 from service.settings import Settings
-from tests.service.test_app import TRACKED, raster_map
+from tests.service.helpers import TRACKED, raster_map
 
 B = SonarConfig().block_samples
 LIMIT = 256 * 1024

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, settings
 from mapping.files import write_map
 from service.app import create_app
 from service.settings import Settings
-from tests.service.test_app import raster_map
+from tests.service.helpers import raster_map
 
 LIMIT = 256 * 1024
 

@@ -25,7 +25,7 @@ from mapping.run import Run
 from service.builds import simulate_default_run
 from service.client_example import pose_of, stream_run
 from service.server import ServerProcess
-from tests.service.test_app import raster_map
+from tests.service.helpers import raster_map
 
 N_BLOCKS = 10
 
