@@ -47,6 +47,7 @@ from mapping.simulate.fdtd import (
     new_state,
     setup_for_scene,
 )
+from tests.mapping.simulate.fdtd.naive import NumpyFdtdSolver
 
 _HERE = Path(__file__).resolve().parent
 matplotlib.use("Agg")
@@ -98,6 +99,8 @@ def bandwidth(n_cells: int, dtype: str, threads: int) -> dict[str, float]:
 def _solver(n: int, dtype: str, backend: str, n_fields: int, guard: bool = True) -> FdtdSolver:
     cfg = FdtdConfig(pml_cells=24, dtype=dtype, denormal_guard=guard)
     grid = FdtdGrid(origin_m=(0.0, 0.0), shape=(n, n), grid_step_m=0.005, pml_cells=24)
+    if backend == "numpy":  # the plain numpy twin (tests/mapping/simulate/fdtd/naive.py)
+        return NumpyFdtdSolver(grid, cfg, C, None, n_fields)
     return FdtdSolver(grid, cfg, C, None, n_fields, backend)
 
 

@@ -36,9 +36,10 @@ import numpy as np
 
 from benchmarks._common import RESULTS, simulated_run
 from mapping.build import BuildParams, RunSource, build_map, process_pool, run_heatmaps
-from mapping.grid import GridParams, accumulate, backproject_numpy, map_extent
+from mapping.grid import GridParams, accumulate, map_extent
 from mapping.reconstruct import InverseParams, observations_from_heatmaps, reconstruct_inverse
 from mapping.run import Run
+from tests.mapping.grid.naive import backproject_numpy
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:

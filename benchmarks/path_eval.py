@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.path import builtin_path, position_velocity_numpy
+from mapping.path import builtin_path
+from tests.mapping.path.naive import position_velocity_numpy
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

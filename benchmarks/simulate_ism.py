@@ -3,7 +3,8 @@
 For built-in scenes of 3 to 8 walls and reflection orders 1-3 (and the automatic order), the
 median wall time of one block from :func:`mapping.simulate.ism.iter_ism_blocks` (validity
 trace, retarded-delay Newton on the coarse grid, numba render, path table), against the
-straightforward per-sample reference loop (:func:`mapping.simulate.ism.render_reference`:
+straightforward per-sample reference loop (`render_reference` in
+`tests/mapping/simulate/ism/naive.py`:
 trace, Newton to convergence and signal evaluation at every sample) timed on a short stretch
 in the same process and scaled to a block. The two outputs are compared on that stretch.
 
@@ -34,9 +35,9 @@ from mapping.simulate.ism import (
     iter_ism_blocks,
     plan_stretch,
     prepare_scene,
-    render_reference,
     render_stretch,
 )
+from tests.mapping.simulate.ism.naive import render_reference
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SCENES = {"paper": "paper-b", "shoebox": "shoebox-curve", "l-room": "l-room-curve",

@@ -195,8 +195,7 @@ def _check_grid(G: FloatArray, extent: GridExtent, literal: bool) -> None:
 
 
 def backproject(
-    G: FloatArray, extent: GridExtent, heatmap: HeatMap, pose: FloatArray, params: GridParams,
-    engine: str = "numba",
+    G: FloatArray, extent: GridExtent, heatmap: HeatMap, pose: FloatArray, params: GridParams
 ) -> None:
     """Add one block's Cartesian heat map (eqs. 2-4) into ``G`` in place (eq. 5).
 
@@ -211,21 +210,13 @@ def backproject(
     pose : ndarray, shape (3,)
         Tracked x_m, y_m and direction of travel phi_p (rad) at the block midpoint.
     params : GridParams
-    engine : {"numba", "numpy"}
-        The compiled kernel or its plain numpy twin (tests).
     """
     r0, dr = _check_heatmap(heatmap)
     px, py, phi = _check_pose(pose)
     _check_grid(G, extent, params.literal)
     H = np.ascontiguousarray(remove_floor(heatmap.H, params.floor))
-    args = (extent.origin_m[0], extent.origin_m[1], extent.resolution_m, H, r0, dr,
-            px, py, phi, params.radius_m, params.literal)
-    if engine == "numba":
-        _grid_kernels._backproject(G, *args)
-    elif engine == "numpy":
-        G += backproject_numpy(G.shape, *args)
-    else:
-        raise ValueError(f"engine must be 'numba' or 'numpy', got {engine!r}")
+    _grid_kernels._backproject(G, extent.origin_m[0], extent.origin_m[1], extent.resolution_m,
+                               H, r0, dr, px, py, phi, params.radius_m, params.literal)
 
 
 def cartesian_heatmap(
@@ -241,7 +232,7 @@ def cartesian_heatmap(
 
 def accumulate(
     heatmaps: Iterable[HeatMap | None], poses: FloatArray, params: GridParams | None = None,
-    extent: GridExtent | None = None, engine: str = "numba",
+    extent: GridExtent | None = None,
 ) -> tuple[FloatArray, GridExtent, dict[str, int]]:
     """Sum of the blocks' Cartesian heat maps over the run, eq. 5.
 
@@ -275,7 +266,7 @@ def accumulate(
         if params.skip_unobservable and not hm.direction_observable:
             counts["blocks_unobservable"] += 1
             continue
-        backproject(G, extent, hm, poses[k], params, engine=engine)
+        backproject(G, extent, hm, poses[k], params)
         counts["blocks_used"] += 1
     return G, extent, counts
 
@@ -287,48 +278,3 @@ def to_wallmap(
     """Wrap an accumulated G as a :class:`WallMap`."""
     return WallMap(G=G, origin_m=extent.origin_m, resolution_m=extent.resolution_m, sonar=sonar,
                    method=method, params=params.to_dict(), provenance=dict(provenance or {}))
-
-
-# ---- numpy twin of the kernel (tests) ---------------------------------------------------
-def backproject_numpy(
-    shape: tuple[int, int], ox: float, oy: float, res: float, H: FloatArray, r0: float,
-    dr: float, px: float, py: float, heading: float, radius: float, literal: bool,
-) -> FloatArray:
-    """Plain numpy twin of ``_grid_kernels._backproject``: returns the block's contribution."""
-    ny, nx = shape
-    n_max = H.shape[0] - 1
-    n_samples = H.shape[1]
-    iy, ix = np.mgrid[0:ny, 0:nx]
-    out = np.zeros(shape)
-    if literal:
-        mxp, myp = math.floor(px / res + 0.5), math.floor(py / res + 0.5)
-        mx = math.floor(ox / res + 0.5) + ix - mxp
-        my = math.floor(oy / res + 0.5) + iy - myp
-        r = np.sqrt((mx * res) ** 2 + (my * res) ** 2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            safe = np.where(mx == 0, 1, mx)
-            ang = np.where(mx == 0, np.sign(my) * np.pi / 2, np.arctan(my / safe))
-        row = np.floor(np.abs(ang - heading) * n_max / np.pi + 0.5).astype(np.int64)
-        n = np.floor((r - r0) / dr + 0.5).astype(np.int64)
-        ok = ((mx != 0) | (my != 0)) & (r <= radius) & (row >= 0) & (row <= n_max)
-        ok &= (n >= 0) & (n < n_samples)
-        out[ok] = H[row[ok], n[ok]]
-        return out
-    dx = ox + ix * res - px
-    dy = oy + iy * res - py
-    r = np.sqrt(dx * dx + dy * dy)
-    diff = np.mod(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
-    row = np.minimum(np.floor(np.abs(diff) * n_max / np.pi + 0.5).astype(np.int64), n_max)
-    half = 0.5 * res
-    r_lo = np.hypot(np.maximum(np.abs(dx) - half, 0), np.maximum(np.abs(dy) - half, 0))
-    r_hi = np.hypot(np.abs(dx) + half, np.abs(dy) + half)
-    lo = np.maximum(np.ceil((r_lo - r0) / dr).astype(np.int64), 0)
-    hi = np.minimum(np.floor((r_hi - r0) / dr).astype(np.int64), n_samples - 1)
-    for j in zip(*np.nonzero(r <= radius), strict=True):
-        a, b = lo[j], hi[j]
-        if a > b:
-            n = math.floor((r[j] - r0) / dr + 0.5)
-            out[j] = H[row[j], n] if 0 <= n < n_samples else 0.0
-        else:
-            out[j] = H[row[j], a:b + 1].max()
-    return out

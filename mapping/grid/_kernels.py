@@ -1,6 +1,8 @@
-"""numba kernels of :mod:`mapping.grid` (private; imported only by ``mapping/grid.py``).
+"""numba kernels of :mod:`mapping.grid` (private; imported only by
+``mapping/grid/_backprojection.py``).
 
-Each kernel has a plain numpy twin in :mod:`mapping.grid` that the tests compare against.
+The plain numpy twin lives with the tests (``tests/mapping/grid/naive.py``), which compare
+it with :func:`mapping.grid.backproject`.
 """
 
 from __future__ import annotations

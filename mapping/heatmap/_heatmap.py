@@ -6,7 +6,7 @@ cross-correlation of the transmitted period with the received block resampled by
 ratio alpha of eq. 1 for the direction ``theta = pi n_theta / N``.
 
 The resampling (``method="spectral"`` or ``"direct"``, two implementations of the same eq. 1,
-their numba kernels and numpy twins) lives in :mod:`mapping.doppler_resampling`; this module
+their numba kernels) lives in :mod:`mapping.heatmap._resampling`; this module
 validates the input, builds the :class:`HeatMap` and reads its peak. Its public names
 (``bank_angles``, ``doppler_ratios``, ``required_margin``, ``resample_about_centre``, ...) are
 importable from here too. Kernels run in parallel over directions; the FFTs use ``scipy.fft``
@@ -25,7 +25,6 @@ from mapping.heatmap._resampling import (
     DEFAULT_TAPS,
     SPECTRAL_TAPS,
     Bank,
-    Engine,
     FloatArray,
     Method,
     bank_angles,
@@ -126,7 +125,6 @@ def doppler_heatmap(
     method: Method = "spectral",
     taps: int | None = None,
     bank: Bank = "uniform_angle",
-    engine: Engine = "numba",
     workers: int = 2,
     min_drift_samples: float = MIN_DRIFT_SAMPLES,
 ) -> HeatMap:
@@ -159,8 +157,6 @@ def doppler_heatmap(
         taps=2`` is linear interpolation (for comparison only: it loses ~3 dB at fc/fs = 1/4).
     bank : {"uniform_angle", "uniform_cos"}
         Direction bank: eq. 1's ``pi n / N`` or uniform in cos(theta) (see :func:`bank_angles`).
-    engine : {"numba", "numpy"}
-        The numba kernel or its plain numpy twin (same algorithm, for tests).
     workers : int
         Threads for ``scipy.fft``.
     min_drift_samples : float
@@ -178,7 +174,7 @@ def doppler_heatmap(
     ------
     ValueError
         Naming the parameter: wrong length, NaN/inf samples, non-finite or too large speed,
-        bad ``taps``/``bank``/``method``/``engine``/``left``/``right``.
+        bad ``taps``/``bank``/``method``/``left``/``right``.
 
     Notes
     -----
@@ -232,8 +228,6 @@ def doppler_heatmap(
     samples, lo, hi, v = _validate(block, speed_m_s, config, left, right)
     if bank not in ("uniform_angle", "uniform_cos"):
         raise ValueError(f"bank must be 'uniform_angle' or 'uniform_cos', got {bank!r}")
-    if engine not in ("numba", "numpy"):
-        raise ValueError(f"engine must be 'numba' or 'numpy', got {engine!r}")
     if method not in ("spectral", "direct"):
         raise ValueError(f"method must be 'spectral' or 'direct', got {method!r}")
     k = (DEFAULT_TAPS if method == "direct" else SPECTRAL_TAPS) if taps is None else taps
@@ -245,7 +239,7 @@ def doppler_heatmap(
     b = config.block_samples
     drift = abs(1.0 - alphas[0]) * b / 2.0
     unique = np.array([1.0]) if speed == 0.0 else alphas
-    env = bank_envelope(samples, lo, hi, unique, speed, config, method, int(k), engine, workers)
+    env = bank_envelope(samples, lo, hi, unique, speed, config, method, int(k), workers)
     if env.shape[0] != angles.size:
         env = np.repeat(env, angles.size, axis=0)
     ranges = np.arange(config.period_samples, dtype=np.float64) * config.range_per_sample_m
@@ -262,7 +256,6 @@ def heatmap_of_run(
     method: Method = "spectral",
     taps: int | None = None,
     bank: Bank = "uniform_angle",
-    engine: Engine = "numba",
     workers: int = 2,
     min_drift_samples: float = MIN_DRIFT_SAMPLES,
 ) -> HeatMap:
@@ -278,7 +271,7 @@ def heatmap_of_run(
     samples, left, right = run.neighbourhood(int(k), margin)
     return doppler_heatmap(
         samples, speed, run.config, left=left, right=right, method=method, taps=taps,
-        bank=bank, engine=engine, workers=workers, min_drift_samples=min_drift_samples,
+        bank=bank, workers=workers, min_drift_samples=min_drift_samples,
     )
 
 

@@ -1,14 +1,16 @@
 """numba kernels of :mod:`mapping.heatmap` (private; imported only by
-``mapping/doppler_resampling.py``, the resampling stage of the heat map).
+``mapping/heatmap/_resampling.py``, the resampling stage of the heat map).
 
-The plain numpy twin of every kernel lives in :mod:`mapping.doppler_resampling`
-(``_resample_fold_numpy``, ``_spectral_bank_numpy``, ``_strip_numpy``) and the tests compare the
-two through ``doppler_heatmap(..., engine=...)``.
+``_spectral_bank`` takes its inputs as two records, :class:`_SpectralGrid` (the gridding
+problem) and :class:`_Window` (the block samples for the window-edge corrections), built once
+by ``_resampling._spectral_envelope``. The plain numpy twin of every kernel lives with the
+tests (``tests/mapping/heatmap/naive.py``), which compare the two on random inputs.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -57,24 +59,36 @@ def _resample_fold(
                 out[d, j] += acc
 
 
+class _SpectralGrid(NamedTuple):
+    """Kaiser-Bessel gridding of the block spectrum (see :func:`_spectral_bank`, step 1)."""
+
+    spec_re: np.ndarray  # Re G[j] at index pad + j, j in [-pad, nf/2 + pad)
+    spec_im: np.ndarray  # Im G[j], same layout
+    pad: int
+    nf: int  # DFT length of the deapodized block
+    taps: int  # gridding kernel length
+    table: np.ndarray  # (per_unit + 1, taps) kernel samples
+    per_unit: int  # table rows per unit of xi
+
+
+class _Window(NamedTuple):
+    """The block samples read by the window-edge corrections (:func:`_spectral_bank`, step 2)."""
+
+    ext: np.ndarray  # zero-padded samples around the block
+    origin: int  # index of block sample 0 in ext
+    n_block: int  # B
+    centre: float  # resampling centre c (B / 2)
+    icentre: int  # time origin of the spectrum (B // 2)
+    strip_step_rad: float  # see :func:`_add_strip`
+
+
 @numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
 def _spectral_bank(
-    spec_re: np.ndarray,
-    spec_im: np.ndarray,
-    pad: int,
-    nf: int,
-    ext: np.ndarray,
-    origin: int,
-    n_block: int,
-    centre: float,
-    icentre: int,
+    grid: _SpectralGrid,
+    window: _Window,
     alphas: np.ndarray,
     period: int,
-    taps: int,
-    table: np.ndarray,
-    per_unit: int,
     conj_tx: np.ndarray,
-    strip_step_rad: float,
     out: np.ndarray,
 ) -> None:
     """One-sided analytic cross-spectrum of every direction (see ``mapping.heatmap``).
@@ -96,6 +110,10 @@ def _spectral_bank(
 
     Phasors advance by complex multiplication and are recomputed every 256 steps.
     """
+    spec_re, spec_im, pad, nf = grid.spec_re, grid.spec_im, grid.pad, grid.nf
+    taps, table, per_unit = grid.taps, grid.table, grid.per_unit
+    ext, origin, n_block = window.ext, window.origin, window.n_block
+    centre, icentre, strip_step_rad = window.centre, window.icentre, window.strip_step_rad
     n_dirs = alphas.size
     n_q = period // 2 + 1
     half = taps // 2

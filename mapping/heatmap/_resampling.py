@@ -9,14 +9,14 @@ Two implementations of the same eq. 1 (see :func:`mapping.heatmap.doppler_heatma
 
 * ``method="direct"``: resample in time about the block centre (Kaiser-windowed sinc,
   polyphase table), fold the M periods -> (N+1, P) -> rfft x conj(S), one-sided -> ifft -> |.|.
-  Kernel ``_heatmap_kernels._resample_fold``, numpy twin ``_resample_fold_numpy``.
+  Kernel ``_kernels._resample_fold``.
 * ``method="spectral"`` (default): the folded spectrum of the resampled block is the DFT of the
   unresampled block at frequencies scaled by 1/alpha; one rfft of the block, Kaiser-Bessel
   gridding for all directions, window-edge corrections -> x conj(S) -> ifft -> |.|.
-  Kernel ``_heatmap_kernels._spectral_bank`` (+ ``_add_strip``), numpy twin
-  ``_spectral_bank_numpy`` (+ ``_strip_numpy``).
+  Kernel ``_kernels._spectral_bank`` (+ ``_add_strip``).
 
-This module is the only importer of :mod:`mapping._heatmap_kernels`; inputs are validated by
+The kernels' plain numpy twins live with the tests (``tests/mapping/heatmap/naive.py``).
+This module is the only importer of :mod:`mapping.heatmap._kernels`; inputs are validated by
 :func:`mapping.heatmap.doppler_heatmap` before they reach it.
 """
 
@@ -35,7 +35,6 @@ from mapping.signal import SonarConfig, tx_period
 
 FloatArray = NDArray[np.float64]
 Bank = Literal["uniform_angle", "uniform_cos"]
-Engine = Literal["numba", "numpy"]
 Method = Literal["spectral", "direct"]
 
 #: Number of fractional-delay phases of the polyphase interpolator table.
@@ -123,41 +122,27 @@ def _padded(
     return ext, before + left
 
 
-def _resample_fold_numpy(
-    ext: FloatArray, origin: float, centre: float, alphas: FloatArray, n_periods: int,
-    period: int, table: FloatArray,
-) -> FloatArray:
-    """Plain numpy twin of ``_heatmap_kernels._resample_fold`` (same arithmetic)."""
-    taps = table.shape[1]
-    q = table.shape[0] - 1
-    half = taps // 2 - 1
-    n = np.arange(n_periods * period, dtype=np.float64)
-    out = np.empty((alphas.size, period))
-    for d, a in enumerate(alphas):
-        x = origin + centre + a * (n - centre)
-        i = np.floor(x)
-        p = np.floor((x - i) * q + 0.5).astype(np.int64)
-        idx = i.astype(np.int64)[:, None] - half + np.arange(taps)[None, :]
-        values = np.sum(ext[idx] * table[p], axis=1)
-        out[d] = values.reshape(n_periods, period).sum(axis=0)
-    return out
-
-
 def resample_about_centre(
     samples: FloatArray, alpha: float, n_out: int, *, left: int = 0, taps: int = DEFAULT_TAPS
 ) -> FloatArray:
     """Band-limited resampling ``r'[n] = r(c + alpha (n - c))``, c = n_out / 2, n = 0..n_out-1.
 
     ``samples`` holds ``left`` samples before sample 0 of the block and any number after;
-    reads beyond them see zeros. The plain numpy path of the heat map's first stage (without
-    the fold); used to test the interpolator against the exact band-limited signal.
+    reads beyond them see zeros. The heat map's first stage for one ratio and no fold, in
+    plain numpy (the same arithmetic as the kernel ``_resample_fold``, which sums in another
+    order); used to test the interpolator against the exact band-limited signal.
     """
     samples = np.asarray(samples, dtype=np.float64)
     margin = int(math.ceil(abs(1.0 - alpha) * (n_out / 2.0 + 1.0))) + taps // 2 + 2
     ext, origin = _padded(samples, left, max(samples.size - left - n_out, 0), n_out, margin)
-    return _resample_fold_numpy(
-        ext, float(origin), n_out / 2.0, np.array([alpha]), 1, n_out, polyphase_table(taps)
-    )[0]
+    table = polyphase_table(taps)
+    q = table.shape[0] - 1
+    n = np.arange(n_out, dtype=np.float64)
+    x = float(origin) + n_out / 2.0 + alpha * (n - n_out / 2.0)
+    i = np.floor(x)
+    p = np.floor((x - i) * q + 0.5).astype(np.int64)
+    idx = i.astype(np.int64)[:, None] - (taps // 2 - 1) + np.arange(taps)[None, :]
+    return np.asarray(np.sum(ext[idx] * table[p], axis=1))
 
 
 # ---- spectral method: resampling as a scaled-frequency DFT ----------------------------------
@@ -215,56 +200,6 @@ def _hermitian_extended(spec: NDArray, pad: int) -> tuple[FloatArray, FloatArray
     return np.ascontiguousarray(ext.real), np.ascontiguousarray(ext.imag)
 
 
-def _spectral_bank_numpy(
-    spec: NDArray, nf: int, ext: FloatArray, origin: int, n_block: int, centre: float,
-    icentre: int, alphas: FloatArray, period: int, taps: int, table: FloatArray,
-    per_unit: int, conj_tx: NDArray,
-) -> NDArray[np.complex128]:
-    """Plain numpy twin of ``_heatmap_kernels._spectral_bank`` (same algorithm)."""
-    n_q = period // 2 + 1
-    q = np.arange(n_q, dtype=np.float64)
-    grid = np.arange(table.shape[0]) / per_unit
-    out = np.zeros((alphas.size, period), dtype=np.complex128)
-    for d, a in enumerate(alphas):
-        xi = q * (nf / (a * period))
-        fl = np.floor(xi)
-        j = (fl.astype(np.int64) - taps // 2 + 1)[:, None] + np.arange(taps)[None, :]
-        w = np.stack([np.interp(xi - fl, grid, table[:, t]) for t in range(taps)], axis=1)
-        jm = j % nf
-        low = jm < spec.size
-        g = np.where(low, spec[np.where(low, jm, 0)], np.conj(spec[np.where(low, 0, nf - jm)]))
-        acc = np.sum(w * g, axis=1)
-        lo = math.ceil(centre - a * (centre + 0.5))
-        hi = math.ceil(centre + a * (n_block - 0.5 - centre))
-        strips = [(lo, 0, 1.0) if lo < 0 else (0, lo, -1.0),
-                  (n_block, hi, 1.0) if hi > n_block else (hi, n_block, -1.0)]
-        delta = 2.0 * np.pi / (a * period)
-        for start, stop, sign in strips:
-            acc = acc + _strip_numpy(ext, origin, start, stop, sign, icentre, delta, n_q)
-        phase = -2.0 * np.pi / period * (centre * (1.0 - 1.0 / a) + icentre / a) * q
-        out[d, :n_q] = acc * np.exp(1j * phase) * conj_tx / a
-    return out
-
-
-def _strip_numpy(
-    ext: FloatArray, origin: int, start: int, stop: int, sign: float, icentre: int,
-    delta: float, n_q: int,
-) -> NDArray[np.complex128]:
-    """Plain numpy twin of ``_heatmap_kernels._add_strip`` (returns the added term)."""
-    q = np.arange(n_q, dtype=np.float64)
-    n_s = stop - start
-    if n_s <= 0:
-        return np.zeros(n_q, dtype=np.complex128)
-    k = origin + np.arange(start, stop)
-    ok = (k >= 0) & (k < ext.size)
-    vals = np.where(ok, sign * ext[np.clip(k, 0, ext.size - 1)], 0.0)
-    coarse = max(1, int(STRIP_STEP_RAD / (delta * n_s)))
-    qg = np.arange((n_q - 1) // coarse + 2) * coarse
-    t = np.exp(-1j * delta * np.outer(qg, np.arange(n_s))) @ vals
-    smooth = np.interp(q, qg, t.real) + 1j * np.interp(q, qg, t.imag)
-    return np.asarray(smooth * np.exp(-1j * delta * (start - icentre) * q))
-
-
 # ---- shared spectral stage --------------------------------------------------------------------
 @lru_cache(maxsize=8)
 def _tx_conj_spectrum(config: SonarConfig) -> NDArray[np.complex128]:
@@ -300,7 +235,7 @@ def _envelope(folded: FloatArray, config: SonarConfig, workers: int) -> FloatArr
 
 def bank_envelope(
     samples: FloatArray, left: int, right: int, alphas: FloatArray, speed_m_s: float,
-    config: SonarConfig, method: Method, taps: int, engine: Engine, workers: int,
+    config: SonarConfig, method: Method, taps: int, workers: int,
 ) -> FloatArray:
     """Envelopes (alphas.size, P) of eq. 1 for each resampling ratio in ``alphas``.
 
@@ -311,19 +246,16 @@ def bank_envelope(
     ext, origin = _padded(samples, left, right, config.block_samples,
                           required_margin(config, speed_m_s, taps))
     if method == "direct":
-        return _envelope(_fold(ext, float(origin), alphas, config, taps, engine), config, workers)
-    return _spectral_envelope(ext, origin, alphas, config, taps, engine, workers)
+        return _envelope(_fold(ext, float(origin), alphas, config, taps), config, workers)
+    return _spectral_envelope(ext, origin, alphas, config, taps, workers)
 
 
 def _fold(
-    ext: FloatArray, origin: float, alphas: FloatArray, config: SonarConfig, taps: int,
-    engine: Engine,
+    ext: FloatArray, origin: float, alphas: FloatArray, config: SonarConfig, taps: int
 ) -> FloatArray:
     table = polyphase_table(taps)
     centre = config.block_samples / 2.0
     p, m = config.period_samples, config.repetitions
-    if engine == "numpy":
-        return _resample_fold_numpy(ext, origin, centre, alphas, m, p, table)
     from mapping.heatmap._kernels import _resample_fold
 
     out = np.empty((alphas.size, p))
@@ -333,23 +265,20 @@ def _fold(
 
 def _spectral_envelope(
     ext: FloatArray, origin: int, alphas: FloatArray, config: SonarConfig, taps: int,
-    engine: Engine, workers: int,
+    workers: int,
 ) -> FloatArray:
     b, p = config.block_samples, config.period_samples
     plan = _spectral_plan(b, taps)
     spec = _block_spectrum(ext, origin, b, plan)
-    tail = (ext, origin, b, b / 2.0, plan.icentre, np.ascontiguousarray(alphas), p, taps,
-            plan.table, plan.per_unit, _tx_conj_spectrum(config))
-    if engine == "numpy":
-        full = _spectral_bank_numpy(spec, plan.nf, *tail).astype(np.complex64)
-    else:
-        from mapping.heatmap._kernels import _spectral_bank
+    from mapping.heatmap._kernels import _spectral_bank, _SpectralGrid, _Window
 
-        # xi reaches q nf / (alpha P) <= nf / (2 alpha): beyond nf/2 when alpha < 1
-        pad = taps + 2 + int(math.ceil(plan.nf / 2.0 * (1.0 / float(alphas.min()) - 1.0)))
-        spec_re, spec_im = _hermitian_extended(spec, pad)
-        full = np.empty((alphas.size, p), dtype=np.complex64)
-        _spectral_bank(spec_re, spec_im, pad, plan.nf, *tail, STRIP_STEP_RAD, full)
+    # xi reaches q nf / (alpha P) <= nf / (2 alpha): beyond nf/2 when alpha < 1
+    pad = taps + 2 + int(math.ceil(plan.nf / 2.0 * (1.0 / float(alphas.min()) - 1.0)))
+    spec_re, spec_im = _hermitian_extended(spec, pad)
+    grid = _SpectralGrid(spec_re, spec_im, pad, plan.nf, taps, plan.table, plan.per_unit)
+    window = _Window(ext, origin, b, b / 2.0, plan.icentre, STRIP_STEP_RAD)
+    full = np.empty((alphas.size, p), dtype=np.complex64)
+    _spectral_bank(grid, window, np.ascontiguousarray(alphas), p, _tx_conj_spectrum(config), full)
     # single precision for the last FFT (relative error ~2e-7 of the peak, 2x faster)
     env = np.abs(scipy.fft.ifft(full, axis=1, workers=workers, overwrite_x=True))
     return np.asarray(env, dtype=np.float64)

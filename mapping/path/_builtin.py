@@ -7,7 +7,7 @@ length ``s`` into a primitive is exact and cheap::
     heading(s) = theta0 + kappa s
     p(s) = p0 + s sinc(kappa s / 2) [cos(theta0 + kappa s / 2), sin(theta0 + kappa s / 2)]
 
-(evaluated in a numba kernel, ``_path_kernels.py``, with a numpy twin for the tests),
+(evaluated in a numba kernel, ``_kernels.py``, with a numpy twin in the tests),
 so speed is constant *exactly* (``|velocity| = speed``), velocity is continuous (C1) wherever
 consecutive primitives share their end tangent, and yaw rate is ``speed * kappa``.
 

@@ -7,8 +7,8 @@ by its start point, start heading, curvature ``kappa`` and length. Position at a
     heading(s) = theta0 + kappa s
     p(s) = p0 + s sinc(kappa s / 2) [cos(theta0 + kappa s / 2), sin(theta0 + kappa s / 2)]
 
-(evaluated in a numba kernel, ``_path_kernels.py``, with a numpy twin,
-:func:`position_velocity_numpy`, for the tests), so speed is constant *exactly*, and yaw
+(evaluated in a numba kernel, ``_kernels.py``, whose numpy twin lives with the tests), so
+speed is constant *exactly*, and yaw
 rate is ``speed * kappa``. Outside ``[0, duration_s]`` the robot continues at constant
 velocity along the end tangents. Also :func:`wrap_angle`, the project's (-pi, pi] wrap.
 The constructors live in :mod:`mapping.path_construct`; :mod:`mapping.path` re-exports all.
@@ -127,9 +127,13 @@ class Trajectory:
         """Position (n, 2) in m and velocity (n, 2) in m/s at times ``t_s``, in one pass.
 
         Outside ``[0, duration_s]`` the robot moves straight at constant velocity along the
-        end tangents. Runs in a numba kernel (twin: :func:`position_velocity_numpy`).
+        end tangents. Runs in a numba kernel.
         """
-        from mapping.path._kernels import _position_velocity, _position_velocity_parallel
+        from mapping.path._kernels import (
+            _position_velocity,
+            _position_velocity_parallel,
+            _Primitives,
+        )
 
         t = np.ascontiguousarray(t_s, dtype=np.float64)
         if t.ndim != 1:
@@ -137,14 +141,14 @@ class Trajectory:
         pos = np.empty((t.size, 2))
         vel = np.empty((t.size, 2))
         ex, ey, eth = self._end_state()
-        args = (self.cruise_speed_m_s, self.s0_m, self.x0_m, self.y0_m, self.theta0_rad,
-                self.kappa_1_m, self.total_length_m, ex, ey, eth, pos, vel)
+        path = _Primitives(self.cruise_speed_m_s, self.s0_m, self.x0_m, self.y0_m,
+                           self.theta0_rad, self.kappa_1_m, self.total_length_m, ex, ey, eth)
         if t.size >= _PARALLEL_MIN_TIMES:
             import numba
 
-            _position_velocity_parallel(t, numba.get_num_threads(), *args)
+            _position_velocity_parallel(t, numba.get_num_threads(), path, pos, vel)
         else:  # threads cost more than they save on small inputs (and on a busy machine)
-            _position_velocity(t, 0, t.size, *args)
+            _position_velocity(t, 0, t.size, path, pos, vel)
         return pos, vel
 
     def position(self, t_s: ArrayLike) -> FloatArray:
@@ -181,26 +185,3 @@ class Trajectory:
         """Yaw rate (n,) in rad/s: ``speed * kappa`` (0 on straights and outside [0, T])."""
         _, _, _, kappa = self._locate(t_s)
         return self.cruise_speed_m_s * kappa
-
-
-
-def position_velocity_numpy(trajectory: Trajectory,
-                            t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Plain numpy twin of :meth:`Trajectory.position_velocity` (same formulas; for tests)."""
-    tr = trajectory
-    s, ds, idx, kappa = tr._locate(t_s)
-    x0, y0, th0 = tr.x0_m[idx], tr.y0_m[idx], tr.theta0_rad[idx]
-    after = s > tr.total_length_m
-    if after.any():  # continue from the end point along the end tangent
-        end = tr._end_state()
-        x0 = np.where(after, end[0], x0)
-        y0 = np.where(after, end[1], y0)
-        th0 = np.where(after, end[2], th0)
-        ds = np.where(after, s - tr.total_length_m, ds)
-    half = 0.5 * kappa * ds
-    chord = ds * np.sinc(half / np.pi)
-    mid = th0 + half
-    pos = np.column_stack([x0 + chord * np.cos(mid), y0 + chord * np.sin(mid)])
-    theta = th0 + 2.0 * half
-    v = tr.cruise_speed_m_s
-    return pos, np.column_stack([v * np.cos(theta), v * np.sin(theta)])

@@ -1,4 +1,29 @@
-"""TODO docstring."""
+"""The FDTD reference simulator of a moving sonar (paper Sec. 3, eqs. 6-17, Table 2).
+
+A 2-D staggered-grid p-q FDTD (eqs. 9-11) with a graded split-field PML, walls on velocity
+nodes (rigid, or locally reacting for a finite impedance), and the moving source and receiver
+placed by the direct method with bilinear weights (eqs. 12-17). Two fields advance in the same
+sweep, with and without walls; their difference at the receiver is the received signal without
+the direct wave. Slow and exact where the image-source engine is not (diffraction at free wall
+ends); its grid dispersion is predicted (`numerical_wavenumber`, `numerical_group_velocity`).
+
+Entry points: `FdtdConfig` (frozen; Table 2 defaults) and `simulate_fdtd` (scene + path ->
+`mapping.run.Run`); for progress, checkpoints and resuming, `setup_for_scene` / `setup_fdtd`
+(`FdtdSetup` with its `FdtdReport`), `new_state`, `iter_fdtd` (a generator of `FdtdProgress`),
+`restore_state` and `setup_fingerprint`; `iter_fdtd_blocks` is the engine registered as
+``"fdtd"`` in `mapping.simulate.ENGINES`. `FdtdSolver` steps the fields of one grid
+(``backend="numba"``: temporal blocking, `STEPS_PER_SWEEP` steps per sweep;
+``"numba-step"``: one step per sweep, the baseline; ``"numpy"``: the twin);
+`leapfrog_energy` is the discrete energy the scheme conserves.
+
+Notes
+-----
+Private modules: ``_config`` (`FdtdConfig`, Courant and band checks), ``_grid`` (fitting the
+grid, rasterizing walls, PML coefficients, stencils), ``_dispersion`` (dispersion, the
+injected source signal, resampling to the sonar rate), ``_solver`` (`FdtdSolver`, the only
+user of the kernels), ``_kernels`` (numba kernels of eqs. 9-11), ``_engine`` (set-up, state,
+stepping a run).
+"""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """Private numba kernels of the staggered-grid FDTD (paper eqs. 9-11); imported only by
-:mod:`mapping.simulate.fdtd_solver` (re-exported by :mod:`mapping.simulate.fdtd`), which
-validates every input first.
+``mapping/simulate/fdtd/_solver.py`` (:class:`~mapping.simulate.fdtd.FdtdSolver`), which
+validates every input first and hands the kernels four records: :class:`_Fields`,
+:class:`_Coefficients`, :class:`_Walls` and :class:`_Drive`.
 
 Layout (first index x / row ``i``, second index y / column ``j``; ``f`` = field):
 
@@ -19,8 +20,8 @@ the ``qy`` nodes of row ``i`` (from the old pressure), then the pressure of row 
 the new velocities). Rows are split into contiguous chunks, one ``prange`` iteration each;
 the first row of every chunk needs the last velocity row of the previous chunk, so its
 pressure is updated in a short serial second pass (one thread barrier per step). The
-arithmetic per element is the same as the plain numpy twin at the end of this module
-(tested).
+arithmetic per element is the same as the plain numpy twin in the tests
+(``tests/mapping/simulate/fdtd/naive.py``; tested).
 
 :func:`_run_sweeps` (the solver's default) does the same row updates with temporal
 blocking: several steps per sweep over the rows along a skewed wavefront (step ``k`` of row
@@ -41,10 +42,63 @@ numba IR level (``inline="always"``): the calls with their dozens of array argum
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
 from mapping.numba_config import NUMBA_FLAGS, PARALLEL
+
+
+class _Fields(NamedTuple):
+    """The staggered fields (layout in the module notes), updated in place."""
+
+    p: np.ndarray  # (nf, nx, ny) pressure + offset
+    qx: np.ndarray  # (nf, nx + 1, ny)
+    qy: np.ndarray  # (nf, nx, ny + 1)
+    psx: np.ndarray  # (nf, nx, ny) x part of the split pressure in the PML
+
+
+class _Coefficients(NamedTuple):
+    """Update coefficients of eqs. 9-11 with the graded PML (``FdtdCoefficients``)."""
+
+    aqx: np.ndarray  # (nx + 1,) velocity decay and gain along x
+    bqx: np.ndarray
+    aqy: np.ndarray  # (ny + 1,)
+    bqy: np.ndarray
+    apx: np.ndarray  # (nx,) split-pressure decay and gain
+    bpx: np.ndarray
+    apy: np.ndarray  # (ny,)
+    bpy: np.ndarray
+    kp: Any  # interior pressure gain rho c^2 dt / dx, in the field dtype
+    npml: int  # PML thickness in cells
+
+
+class _Walls(NamedTuple):
+    """Walls of field 0 and the storage constants."""
+
+    wx_ptr: np.ndarray  # rigid qx nodes, CSR by row
+    wx_col: np.ndarray
+    wy_ptr: np.ndarray  # rigid qy nodes, CSR by row
+    wy_col: np.ndarray
+    imp_ptr: np.ndarray  # impedance cells, CSR by row
+    imp_col: np.ndarray
+    imp_beta: np.ndarray  # their implicit coefficient
+    imp_buf: np.ndarray  # scratch: their pressure before the update
+    offset: Any  # pressure storage offset, field dtype
+    flush: Any  # values below this are flushed to 0 in the PML, field dtype
+
+
+class _Drive(NamedTuple):
+    """Source and receiver of every step n: bilinear stencils (n, 4) and the source signal."""
+
+    src_i: np.ndarray
+    src_j: np.ndarray
+    src_w: np.ndarray
+    src_g: np.ndarray  # (n,)
+    rx_i: np.ndarray
+    rx_j: np.ndarray
+    rx_w: np.ndarray
 
 
 @njit(inline="always", **NUMBA_FLAGS)
@@ -195,12 +249,14 @@ def _inject_and_receive(p, n, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out,
 
 
 @njit(parallel=PARALLEL, **NUMBA_FLAGS)
-def _run_steps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
-               wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf,
-               offset, flush, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w,
-               out, n_chunks):  # pragma: no cover - numba
-    """Advance ``src_g.size`` steps: the fused sweep (a parallel pass over row chunks and a
-    serial pass over the chunks' first rows), then the source and receiver of that step."""
+def _run_steps(fields, coef, walls, drive, out, n_chunks):  # pragma: no cover - numba
+    """Advance ``drive.src_g.size`` steps: the fused sweep (a parallel pass over row chunks
+    and a serial pass over the chunks' first rows), then the source and receiver of that
+    step; receiver pressure into ``out`` (n, n_fields)."""
+    p, qx, qy, psx = fields
+    aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml = coef
+    wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf, offset, flush = walls
+    src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w = drive
     nf = p.shape[0]
     nx = p.shape[1]
     zero = flush - flush  # in the field dtype (a Python 0.0 would promote to float64)
@@ -256,11 +312,8 @@ def _pressure_rows(p, qx, qy, psx, i, n, apx, bpx, apy, bpy, kp, npml, imp_ptr, 
 
 
 @njit(parallel=PARALLEL, **NUMBA_FLAGS)
-def _run_sweeps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
-                wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf,
-                offset, flush, src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w,
-                outk, n_chunks, depth):  # pragma: no cover - numba
-    """Advance ``src_g.size`` steps, ``depth`` steps per sweep over the rows (temporal
+def _run_sweeps(fields, coef, walls, drive, outk, n_chunks, depth):  # pragma: no cover - numba
+    """Advance ``drive.src_g.size`` steps, ``depth`` steps per sweep over the rows (temporal
     blocking); same arithmetic per element as :func:`_run_steps`, so the same result bit
     for bit, in a different order.
 
@@ -280,6 +333,10 @@ def _run_sweeps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml
     [b - k, b + k + 1)), step by step. Receiver terms go to ``outk`` (n, n_fields, 4);
     the caller sums them over the last axis in node order.
     """
+    p, qx, qy, psx = fields
+    aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml = coef
+    wx_ptr, wx_col, wy_ptr, wy_col, imp_ptr, imp_col, imp_beta, imp_buf, offset, flush = walls
+    src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w = drive
     nx = p.shape[1]
     zero = flush - flush  # in the field dtype (a Python 0.0 would promote to float64)
     n_total = src_g.shape[0]
@@ -316,60 +373,3 @@ def _run_sweeps(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml
                                    flush, zero, src_i, src_j, src_w, src_g, rx_i, rx_j,
                                    rx_w, outk)
         n0 += kk
-
-
-# ---- the plain numpy twin (tests and benchmark baseline) -----------------------------------
-def _split_numpy(p, sx, dqx, dqy, apx, bpx, apy, bpy, offset, flush):  # type: ignore[no-untyped-def]
-    px = apx[:, None] * sx - bpx[:, None] * dqx
-    py = apy[None, :] * (p - offset - sx) - bpy[None, :] * dqy
-    px = np.where(np.abs(px) < flush, px.dtype.type(0), px)
-    py = np.where(np.abs(py) < flush, py.dtype.type(0), py)
-    return px, offset + px + py
-
-
-def _step_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
-                wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush):  # type: ignore[no-untyped-def]
-    """One step of eqs. 9-11 as whole-array numpy operations (velocities, then pressure)."""
-    nf, nx, ny = p.shape
-    zero = p.dtype.type(0)
-    pml_cell = np.zeros((nx, ny), dtype=bool)
-    pml_cell[:npml, :] = True
-    pml_cell[nx - npml:, :] = True
-    pml_cell[:, :npml] = True
-    pml_cell[:, ny - npml:] = True
-    for f in range(nf):
-        vx = aqx[1:nx, None] * qx[f, 1:nx] - bqx[1:nx, None] * (p[f, 1:] - p[f, :-1])
-        damped_x = (aqx[1:nx] != 1)[:, None]
-        vx = np.where(damped_x & (np.abs(vx) < flush), zero, vx)
-        qx[f, 1:nx] = vx
-        vy = aqy[None, 1:ny] * qy[f, :, 1:ny] - bqy[None, 1:ny] * (p[f, :, 1:] - p[f, :, :-1])
-        damped_y = (aqy[1:ny] != 1)[None, :]
-        vy = np.where(damped_y & (np.abs(vy) < flush), zero, vy)
-        qy[f, :, 1:ny] = vy
-        if f == 0:
-            qx[0][wx_mask] = zero
-            qy[0][wy_mask] = zero
-        dqx = qx[f, 1:] - qx[f, :-1]
-        dqy = qy[f, :, 1:] - qy[f, :, :-1]
-        plain = p[f] - kp * (dqx + dqy)
-        px, split = _split_numpy(p[f], psx[f], dqx, dqy, apx, bpx, apy, bpy, offset, flush)
-        new = np.where(pml_cell, split, plain)
-        psx[f] = np.where(pml_cell, px, psx[f])
-        if f == 0:
-            beta = imp_beta_grid
-            corrected = offset + ((new - offset) - beta * (p[f] - offset)) / (1 + beta)
-            new = np.where(imp_mask, corrected, new)
-        p[f] = new
-
-
-def _run_steps_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
-                     wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush,
-                     src_i, src_j, src_w, src_g, rx_i, rx_j, rx_w, out):  # type: ignore[no-untyped-def]
-    """Numpy twin of :func:`_run_steps` (walls and impedance cells given as dense masks)."""
-    for n in range(src_g.shape[0]):
-        _step_numpy(p, qx, qy, psx, aqx, bqx, aqy, bqy, apx, bpx, apy, bpy, kp, npml,
-                    wx_mask, wy_mask, imp_mask, imp_beta_grid, offset, flush)
-        for f in range(p.shape[0]):
-            for k in range(4):
-                p[f, src_i[n, k], src_j[n, k]] += src_w[n, k] * src_g[n]
-            out[n, f] = np.sum(rx_w[n] * (p[f, rx_i[n], rx_j[n]] - offset))

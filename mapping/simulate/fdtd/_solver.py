@@ -1,7 +1,8 @@
 """The FDTD solver: fields of one grid and their time stepping (paper eqs. 9-11).
 
-The only user of the numba kernels in :mod:`mapping.simulate._fdtd_kernels`; validates and
-converts every input before calling them. Also the discrete energy the scheme conserves.
+The only user of the numba kernels in :mod:`mapping.simulate.fdtd._kernels`; validates and
+converts every input, and packs it into the kernels' records, before calling them. Also the
+discrete energy the scheme conserves.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ _SMALL_GRID_CELLS = 200_000
 #: not yet inlined, interleaved): 1, 2, 4, 8, 16 steps per sweep ran 0.95, 1.14, 1.36, 1.54,
 #: 1.68x the one-step kernel; 32 and 64 within 2 % of 16 in a second run.
 STEPS_PER_SWEEP = 16
-_BACKENDS = ("numba", "numba-step", "numpy")
+_BACKENDS = ("numba", "numba-step")
 
 
 # ---- the solver ---------------------------------------------------------------------------
@@ -44,8 +45,8 @@ class FdtdSolver:
     :func:`_k._run_sweeps`) on ``n_chunks`` row chunks (default: one per numba thread;
     both are reduced so that every chunk is at least ``2 steps_per_sweep`` rows wide);
     ``"numba-step"`` is the previous one-step-per-sweep kernel (:func:`_k._run_steps`,
-    benchmark baseline); ``"numpy"`` the plain numpy twin (tests, benchmark baseline). All
-    three give the same fields (the two numba kernels bit for bit).
+    benchmark baseline); both give the same fields bit for bit. (The plain numpy twin of
+    the kernels lives with the tests, ``tests/mapping/simulate/fdtd/naive.py``.)
     """
 
     def __init__(self, grid: FdtdGrid, fdtd: FdtdConfig, c: float, walls: WallNodes | None = None,
@@ -91,40 +92,36 @@ class FdtdSolver:
         records the bilinear receiver pressure after it. Returns (n, n_fields)."""
         n = int(np.asarray(src_g).shape[0])
         out = np.zeros((n, self.p.shape[0]))
-        args = (np.ascontiguousarray(src_i, dtype=np.int64),
-                np.ascontiguousarray(src_j, dtype=np.int64),
-                np.ascontiguousarray(src_w, dtype=np.float64),
-                np.ascontiguousarray(src_g, dtype=np.float64),
-                np.ascontiguousarray(rx_i, dtype=np.int64),
-                np.ascontiguousarray(rx_j, dtype=np.int64),
-                np.ascontiguousarray(rx_w, dtype=np.float64))
+        drive = _k._Drive(np.ascontiguousarray(src_i, dtype=np.int64),
+                          np.ascontiguousarray(src_j, dtype=np.int64),
+                          np.ascontiguousarray(src_w, dtype=np.float64),
+                          np.ascontiguousarray(src_g, dtype=np.float64),
+                          np.ascontiguousarray(rx_i, dtype=np.int64),
+                          np.ascontiguousarray(rx_j, dtype=np.int64),
+                          np.ascontiguousarray(rx_w, dtype=np.float64))
         c = self.coef
-        common = (self.p, self.qx, self.qy, self.psx, c.aqx, c.bqx, c.aqy, c.bqy,
-                  c.apx, c.bpx, c.apy, c.bpy, self.dtype.type(c.kp), self.grid.pml_cells)
-        if self.backend != "numpy":
-            import numba
+        fields = _k._Fields(self.p, self.qx, self.qy, self.psx)
+        coef = _k._Coefficients(c.aqx, c.bqx, c.aqy, c.bqy, c.apx, c.bpx, c.apy, c.bpy,
+                                self.dtype.type(c.kp), self.grid.pml_cells)
+        walls = _k._Walls(*self._wx, *self._wy, self._imp_ptr, self._imp_col, self._imp_beta,
+                          self._imp_buf, self.offset, self.flush)
+        import numba
 
-            threads = numba.get_num_threads()
-            if self.p.size < _SMALL_GRID_CELLS:  # a thread barrier per sweep costs more
-                numba.set_num_threads(1)
-            walls = (*self._wx, *self._wy, self._imp_ptr, self._imp_col, self._imp_beta,
-                     self._imp_buf, self.offset, self.flush)
-            try:
-                if self.backend == "numba":
-                    chunks, depth = sweep_plan(self.grid.shape[0], self.steps_per_sweep,
-                                               self.n_chunks or numba.get_num_threads())
-                    outk = np.zeros((n, self.p.shape[0], 4))
-                    _k._run_sweeps(*common, *walls, *args, outk, chunks, depth)
-                    # receiver nodes summed in stencil order, as the one-step kernel does
-                    out[...] = ((outk[..., 0] + outk[..., 1]) + outk[..., 2]) + outk[..., 3]
-                else:
-                    _k._run_steps(*common, *walls, *args, out, _n_chunks(self.grid.shape[0]))
-            finally:
-                numba.set_num_threads(threads)
-        else:
-            beta = self.walls.beta.astype(self.dtype)
-            _k._run_steps_numpy(*common, self.walls.wx, self.walls.wy, beta > 0, beta,
-                                self.offset, self.flush, *args, out)
+        threads = numba.get_num_threads()
+        if self.p.size < _SMALL_GRID_CELLS:  # a thread barrier per sweep costs more
+            numba.set_num_threads(1)
+        try:
+            if self.backend == "numba":
+                chunks, depth = sweep_plan(self.grid.shape[0], self.steps_per_sweep,
+                                           self.n_chunks or numba.get_num_threads())
+                outk = np.zeros((n, self.p.shape[0], 4))
+                _k._run_sweeps(fields, coef, walls, drive, outk, chunks, depth)
+                # receiver nodes summed in stencil order, as the one-step kernel does
+                out[...] = ((outk[..., 0] + outk[..., 1]) + outk[..., 2]) + outk[..., 3]
+            else:
+                _k._run_steps(fields, coef, walls, drive, out, _n_chunks(self.grid.shape[0]))
+        finally:
+            numba.set_num_threads(threads)
         return out
 
     def run_static(self, src_xy: FloatArray, rx_xy: FloatArray, g: FloatArray) -> FloatArray:

@@ -1,7 +1,7 @@
-"""numba kernels of :mod:`mapping.simulate.ism` (private; imported only by ``ism_render.py``).
+"""numba kernels of :mod:`mapping.simulate.ism` (private; imported only by ``_render.py``).
 
-The plain numpy twin (``_render_numpy`` in :mod:`mapping.simulate.ism_render`) computes the same
-sum and the tests compare the two.
+The plain numpy twin (``render_numpy`` in ``tests/mapping/simulate/ism/naive.py``) computes the
+same sum and the tests compare the two.
 """
 
 from __future__ import annotations

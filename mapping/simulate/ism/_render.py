@@ -2,10 +2,10 @@
 
 :func:`plan_stretch` traces path validity and solves the retarded delays on coarse grids;
 :func:`render_stretch` carries them to every sample (cubic Hermite delay, raised-cosine
-gain fades) and sums the paths in the numba kernel of :mod:`mapping.simulate._ism_kernels`.
-The numpy twins (:func:`delay_at_samples`, :func:`gain_at_samples`, ``_render_numpy``) and
-the per-sample loop :func:`render_reference` are the slow references for tests and
-benchmarks; :func:`path_table` gives the ground truth of the paths at a stretch's midpoint.
+gain fades) and sums the paths in the numba kernel of :mod:`mapping.simulate.ism._kernels`;
+:func:`path_table` gives the ground truth of the paths at a stretch's midpoint. The numpy
+twin of the kernel and the slow per-sample reference loop live with the tests
+(``tests/mapping/simulate/ism/naive.py``).
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.signal import TABLE_UPSAMPLE, SonarConfig, periodic_table_at, transmitted_at
+from mapping.signal import TABLE_UPSAMPLE, SonarConfig
 from mapping.simulate._base import PathTable, TrajectoryLike
 from mapping.simulate.ism._config import IsmConfig, _table, signal_period, spreading_power
-from mapping.simulate.ism._delay import retarded_delay, retarded_delay_scalar
+from mapping.simulate.ism._delay import retarded_delay
 from mapping.simulate.ism._images import ImageSet
 from mapping.simulate.ism._kernels import _render
 from mapping.simulate.ism._paths import PreparedScene, traced_gains
@@ -111,110 +111,6 @@ def render_stretch(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) ->
         half_taps,
         out,
     )
-    return out
-
-
-def delay_at_samples(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
-    """Retarded delay of every active path at every sample of the stretch (n_paths, n).
-
-    Cubic Hermite interpolation of the Newton solutions on the delay grid, with their exact
-    time derivatives: the numpy form of what the kernel does per sample.
-    """
-    absn = plan.start_sample + np.arange(plan.n_samples)
-    t = absn / config.fs_hz
-    ht = engine.delay_grid_s
-    ut = t / ht - plan.tau_first_node
-    kt = np.floor(ut).astype(np.int64)
-    ft = ut - kt
-    h00 = (1 + 2 * ft) * (1 - ft) ** 2
-    h10 = ft * (1 - ft) ** 2
-    h01 = ft**2 * (3 - 2 * ft)
-    h11 = ft**2 * (ft - 1)
-    return np.asarray(
-        h00 * plan.tau[:, kt]
-        + h10 * ht * plan.dtau[:, kt]
-        + h01 * plan.tau[:, kt + 1]
-        + h11 * ht * plan.dtau[:, kt + 1]
-    )
-
-
-def gain_at_samples(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
-    """Gain of every active path at every sample (n_paths, n): the validity grid with
-    raised-cosine fades of ``fade_s`` centred between nodes that differ."""
-    absn = plan.start_sample + np.arange(plan.n_samples)
-    t = absn / config.fs_hz
-    hv = engine.validity_grid_s
-    ug = t / hv - plan.gain_first_node
-    kg = np.floor(ug).astype(np.int64)
-    fg = ug - kg
-    half = engine.fade_s / (2 * hv)
-    ramp = np.clip((fg - (0.5 - half)) / (2 * half), 0.0, 1.0)
-    ramp = 0.5 - 0.5 * np.cos(np.pi * ramp)
-    g0, g1 = plan.gain[:, kg], plan.gain[:, kg + 1]
-    return np.asarray(g0 + (g1 - g0) * ramp)
-
-
-def _render_numpy(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
-    """Plain numpy twin of the kernel (table or windowed sinc), for tests."""
-    fs = config.fs_hz
-    absn = plan.start_sample + np.arange(plan.n_samples)
-    ph = (absn % config.period_samples).astype(np.float64)
-    taus = delay_at_samples(plan, config, engine)
-    gains = gain_at_samples(plan, config, engine)
-    out = np.zeros(plan.n_samples)
-    for i in range(plan.active.size):
-        amp = (config.sound_speed_m_s * taus[i]) ** (-spreading_power(engine.spreading))
-        out += gains[i] * amp * _signal_numpy(ph - taus[i] * fs, config, engine)
-    return out
-
-
-def _signal_numpy(pos: FloatArray, config: SonarConfig, engine: IsmConfig) -> FloatArray:
-    """Path signal at fractional sample positions ``pos`` (numpy)."""
-    if engine.fractional_delay == "table":
-        if engine.spreading == "3d":
-            return transmitted_at(pos / config.fs_hz, config)
-        return periodic_table_at(_table(config, engine.spreading), pos * TABLE_UPSAMPLE)
-    period = signal_period(config, engine.spreading)
-    h = engine.sinc_half_taps
-    i0 = np.floor(pos).astype(np.int64)
-    frac = pos - i0
-    acc = np.zeros(pos.shape)
-    for m in range(-h + 1, h + 1):
-        x = frac - m
-        w = 0.42 + 0.5 * np.cos(np.pi * x / h) + 0.08 * np.cos(2 * np.pi * x / h)
-        acc += period[(i0 + m) % period.size] * np.sinc(x) * w
-    return acc
-
-
-def render_reference(
-    prepared: PreparedScene,
-    trajectory: TrajectoryLike,
-    config: SonarConfig,
-    engine: IsmConfig,
-    start_sample: int,
-    n_samples: int,
-) -> FloatArray:
-    """Straightforward per-sample loop: the slow reference for benchmarks and tests.
-
-    For every sample: trace validity at the robot's position then, for every valid path,
-    solve the retarded delay by Newton to convergence and evaluate the signal. No grids,
-    no interpolation of the delay, no fades (validity switches abruptly).
-    """
-    fs, c = config.fs_hz, config.sound_speed_m_s
-    power = spreading_power(engine.spreading)
-    out = np.zeros(n_samples)
-    for n in range(n_samples):
-        absn = start_sample + n
-        t = absn / fs
-        x = trajectory.position(np.array([t]))
-        images, _, gains_at = traced_gains(prepared, x, engine.spreading)
-        gains = gains_at[:, 0]
-        acc = 0.0
-        for i in np.flatnonzero(gains):
-            tau = retarded_delay_scalar(images.A[i], images.b[i], trajectory, t, c)
-            pos = np.array([float(absn % config.period_samples) - tau * fs])
-            acc += gains[i] * (c * tau) ** (-power) * float(_signal_numpy(pos, config, engine)[0])
-        out[n] = acc
     return out
 
 

@@ -14,12 +14,12 @@ from mapping.grid import (
     GridParams,
     accumulate,
     backproject,
-    backproject_numpy,
     map_extent,
     remove_floor,
     union_extent,
 )
 from mapping.heatmap import HeatMap
+from tests.mapping.grid.naive import backproject_numpy
 from tests.mapping.ideal import ideal_heatmap
 
 RES = 0.05
@@ -104,7 +104,7 @@ def test_numba_equals_numpy_twin(seed: int, literal: bool) -> None:
     params = GridParams(radius_m=float(rng.uniform(0.3, 2.0)), literal=literal, floor="none")
     ext = map_extent(pose[None], 1.0, RES)
     G = ext.zeros()
-    backproject(G, ext, hm, pose, params, engine="numba")
+    backproject(G, ext, hm, pose, params)
     ref = backproject_numpy(ext.shape, ext.origin_m[0], ext.origin_m[1], RES, hm.H, 0.0,
                             0.00425, float(pose[0]), float(pose[1]), float(pose[2]),
                             params.radius_m, literal)

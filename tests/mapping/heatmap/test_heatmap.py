@@ -2,7 +2,7 @@
 
 Truths used: the geometric two-way delay and angle of a wall / point (synthetic), the exactly
 resampled echo evaluated from geometry at the stretched times (no interpolation), and the
-plain numpy twins of the numba kernels.
+plain numpy twins of the numba kernels (naive.py).
 """
 
 from __future__ import annotations
@@ -18,14 +18,22 @@ from hypothesis import strategies as st
 from scipy.signal import hilbert
 
 from mapping.heatmap import (
+    STRIP_STEP_RAD,
     HeatMap,
     bank_angles,
     doppler_heatmap,
     doppler_ratios,
     find_peak,
     heatmap_of_run,
+    polyphase_table,
     required_margin,
     resample_about_centre,
+)
+from mapping.heatmap._kernels import (  # only to compare the kernels with their twins
+    _resample_fold,
+    _spectral_bank,
+    _SpectralGrid,
+    _Window,
 )
 from mapping.run import Run
 from mapping.signal import SonarConfig, transmitted_at, tx_period
@@ -38,6 +46,7 @@ from mapping.synthetic import (
     run_truth,
     synthetic_run,
 )
+from tests.mapping.heatmap import naive
 
 CFG = SonarConfig()  # Table 1, M = 10
 SMALL = SonarConfig(sequence_length=63, repetitions=4)  # B = 1008, for property tests
@@ -250,19 +259,77 @@ def test_windowed_sinc_interpolator_against_band_limited_signal() -> None:
     assert rms[32] < 0.015 and rms[16] < 0.03 and rms[2] > 0.2
 
 
-# ---- numba vs numpy twins ---------------------------------------------------------------------
-@pytest.mark.parametrize("method", ["spectral", "direct"])
-@pytest.mark.parametrize("speed", [0.1, -0.25, 0.0, 1.7])
-def test_numba_matches_numpy_twin(method: str, speed: float) -> None:
-    rng = np.random.default_rng(7)
+# ---- numba kernels vs their numpy twins (tests/mapping/heatmap/naive.py) ---------------------
+def _bank_inputs(speed: float, left: int | None, seed: int) -> tuple[np.ndarray, int, np.ndarray]:
+    """Zero-padded random samples around a Table 1 block (``left`` neighbour samples before
+    it, None = the full margin; 3 fewer than the margin after it, zeros beyond: the reads of
+    a run end), the index of block sample 0, and the Doppler ratios of the bank at |speed|."""
+    rng = np.random.default_rng(seed)
     margin = required_margin(CFG, speed)
-    x = rng.standard_normal(CFG.block_samples + 2 * margin)
-    kw = dict(left=margin, right=margin - 3, method=method)
-    xb = x[: x.size - 3]
-    fast = doppler_heatmap(xb, speed, CFG, engine="numba", **kw)  # type: ignore[arg-type]
-    twin = doppler_heatmap(xb, speed, CFG, engine="numpy", **kw)  # type: ignore[arg-type]
-    np.testing.assert_allclose(fast.H, twin.H, rtol=0, atol=1e-5 * twin.H.max())
-    assert np.max(np.abs(fast.H - twin.H)) <= 1e-5 * np.max(twin.H)
+    lo = margin if left is None else left
+    x = rng.standard_normal(lo + CFG.block_samples + margin - 3)
+    ext = np.zeros(margin + 1 + CFG.block_samples + margin + 1)
+    origin = margin + 1
+    ext[origin - lo : origin - lo + x.size] = x
+    alphas = doppler_ratios(abs(speed), bank_angles(CFG), CFG.sound_speed_m_s)
+    return ext, origin, (np.array([1.0]) if speed == 0.0 else alphas)
+
+
+@pytest.mark.parametrize("left", [None, 0])
+@pytest.mark.parametrize("taps", [2, 16])
+@pytest.mark.parametrize("speed", [0.1, -0.25, 0.0, 1.7])
+def test_resample_fold_kernel_matches_numpy_twin(speed: float, taps: int,
+                                                 left: int | None) -> None:
+    ext, origin, alphas = _bank_inputs(speed, left, 7)
+    p, m = CFG.period_samples, CFG.repetitions
+    table = polyphase_table(taps)
+    fast = np.empty((alphas.size, p))
+    _resample_fold(ext, float(origin), CFG.block_samples / 2.0, alphas, m, p, table, fast)
+    twin = naive.resample_fold_numpy(ext, float(origin), CFG.block_samples / 2.0, alphas, m, p,
+                                     table)
+    np.testing.assert_allclose(fast, twin, rtol=0, atol=1e-5 * np.abs(twin).max())
+    assert np.max(np.abs(fast - twin)) <= 1e-5 * np.max(np.abs(twin))
+
+
+@pytest.mark.parametrize("left", [None, 0, "unpadded"])
+@pytest.mark.parametrize("taps", [2, 8])
+@pytest.mark.parametrize("speed", [0.1, -0.25, 0.0, 1.7])
+def test_spectral_bank_kernel_matches_numpy_twin(speed: float, taps: int,
+                                                 left: int | str | None) -> None:
+    """Random spectrum, gridding table, samples and filter: the kernel (window-edge strips
+    reading zeros beyond the samples or outside the array, none at alpha = 1) against the
+    twin."""
+    import scipy.fft
+
+    rng = np.random.default_rng(11)
+    unpadded = left == "unpadded"
+    ext, origin, alphas = _bank_inputs(speed, None if left is None else 0, 8)
+    if unpadded:  # strips read before index 0 and past the end of ext
+        ext, origin = np.ascontiguousarray(ext[origin : origin + CFG.block_samples]), 0
+    b, p = CFG.block_samples, CFG.period_samples
+    nf = scipy.fft.next_fast_len(2 * b, real=True)
+    nf += nf % 2
+    spec = np.fft.rfft(rng.standard_normal(nf))
+    per_unit = 2048
+    table = rng.random((per_unit + 1, taps))
+    conj_tx = rng.standard_normal(p // 2 + 1) + 1j * rng.standard_normal(p // 2 + 1)
+    pad = taps + 2 + int(math.ceil(nf / 2.0 * (1.0 / float(alphas.min()) - 1.0)))
+    spec_re, spec_im = naive.hermitian_extended(spec, pad)
+    grid = _SpectralGrid(spec_re, spec_im, pad, nf, taps, table, per_unit)
+    window = _Window(ext, origin, b, b / 2.0, b // 2, STRIP_STEP_RAD)
+    fast = np.empty((alphas.size, p), dtype=np.complex64)
+    _spectral_bank(grid, window, alphas, p, conj_tx, fast)
+    twin = naive.spectral_bank_numpy(spec, nf, ext, origin, b, b / 2.0, b // 2, alphas, p,
+                                     taps, table, per_unit, conj_tx)
+    np.testing.assert_allclose(fast, twin, rtol=0, atol=1e-5 * np.abs(twin).max())
+    assert np.max(np.abs(fast - twin)) <= 1e-5 * np.max(np.abs(twin))
+
+
+def test_hermitian_extension_is_the_full_dft() -> None:
+    x = np.random.default_rng(5).standard_normal(64)
+    re, im = naive.hermitian_extended(np.fft.rfft(x), 10)
+    full = np.fft.fft(x)
+    np.testing.assert_allclose(re + 1j * im, full[np.arange(-10, 33 + 10) % 64], atol=1e-12)
 
 
 @settings(max_examples=15, deadline=None)
@@ -303,7 +370,6 @@ def test_shapes_and_invariants(speed: float, left: int, right: int, bank: str,
         (dict(taps=7), "taps"),
         (dict(bank="random"), "bank"),
         (dict(method="magic"), "method"),
-        (dict(engine="gpu"), "engine"),
         (dict(left=-1), "left"),
         (dict(config="table1"), "config"),
     ],

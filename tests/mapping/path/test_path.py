@@ -19,10 +19,10 @@ from mapping.path import (
     min_wall_distance_m,
     path_inside,
     polyline_path,
-    position_velocity_numpy,
     stationary_path,
 )
 from mapping.scene import builtin_scene
+from tests.mapping.path.naive import position_velocity_numpy
 
 
 def _joint_times(tr: Trajectory) -> np.ndarray:

@@ -39,6 +39,7 @@ from mapping.simulate.fdtd import (
     source_signal,
     wall_nodes,
 )
+from tests.mapping.simulate.fdtd.naive import NumpyFdtdSolver
 
 C = 340.0
 RHO = 1.293
@@ -60,7 +61,8 @@ def _gabor(n: int, f0_hz: float, bw_hz: float, t0_s: float) -> np.ndarray:
 def _random_solvers(dtype: str, nx: int = 61, ny: int = 47,
                     **variants: dict[str, object]) -> dict[str, FdtdSolver]:
     """Solvers with the same random fields on a grid with an 8-cell PML, rigid and
-    impedance walls; ``variants`` maps a name to FdtdSolver keyword arguments."""
+    impedance walls; ``variants`` maps a name to FdtdSolver keyword arguments (``twin=True``:
+    a :class:`NumpyFdtdSolver`, stepping with the numpy twin)."""
     cfg = FdtdConfig(pml_cells=8, dtype=dtype)
     grid = _grid(nx, ny, 8)
     seg = np.array([[[0.10, 0.06], [0.13, 0.20]], [[0.06, 0.11], [0.26, 0.12]],
@@ -68,7 +70,9 @@ def _random_solvers(dtype: str, nx: int = 61, ny: int = 47,
     walls = wall_nodes(seg, np.array([np.inf, 800.0, 300.0]), grid, cfg, C)
     assert walls.wx.any() and walls.wy.any() and (walls.beta > 0).any()
     rng = np.random.default_rng(1)
-    solvers = {name: FdtdSolver(grid, cfg, C, walls, 2, **kw)  # type: ignore[arg-type]
+    solvers = {name: (NumpyFdtdSolver if kw.get("twin") else FdtdSolver)(
+                   grid, cfg, C, walls, 2,
+                   **{k: v for k, v in kw.items() if k != "twin"})  # type: ignore[arg-type]
                for name, kw in variants.items()}
     first = next(iter(solvers.values()))
     init = {name: rng.standard_normal(getattr(first, name).shape)
@@ -104,7 +108,7 @@ def _assert_close(a: FdtdSolver, b: FdtdSolver, out_a: np.ndarray, out_b: np.nda
 
 @pytest.mark.parametrize(("dtype", "rtol"), [("float64", 1e-10), ("float32", 2e-4)])
 def test_numba_kernel_equals_numpy_twin(dtype: str, rtol: float) -> None:
-    solvers = _random_solvers(dtype, numba={}, numpy=dict(backend="numpy"))
+    solvers = _random_solvers(dtype, numba={}, numpy=dict(twin=True))
     n = 200
     grid = solvers["numba"].grid
     rng = np.random.default_rng(2)
@@ -141,7 +145,7 @@ def test_blocked_sweeps_equal_numpy_twin(depth: int, chunks: int, threads: int, 
 
     monkeypatch.setattr(fdtd_solver, "_SMALL_GRID_CELLS", 0)  # keep the threads on
     solvers = _random_solvers("float64", numba=dict(steps_per_sweep=depth, n_chunks=chunks),
-                              step=dict(backend="numba-step"), numpy=dict(backend="numpy"))
+                              step=dict(backend="numba-step"), numpy=dict(twin=True))
     grid = solvers["numba"].grid
     assert fdtd_solver.sweep_plan(grid.shape[0], depth, chunks) == (chunks, depth)
     args = _moving_stencils(grid, n_steps, np.random.default_rng(3))
@@ -161,7 +165,7 @@ def test_blocked_sweeps_equal_numpy_twin(depth: int, chunks: int, threads: int, 
 def test_blocked_sweeps_float32_equal_numpy_twin() -> None:
     """Default settings (16 steps per sweep), float32, moving source and receiver, an odd
     step count: within float32 tolerance of the twin."""
-    solvers = _random_solvers("float32", numba={}, numpy=dict(backend="numpy"))
+    solvers = _random_solvers("float32", numba={}, numpy=dict(twin=True))
     args = _moving_stencils(solvers["numba"].grid, 203, np.random.default_rng(4))
     out = {b: s.run(*args) for b, s in solvers.items()}
     _assert_close(solvers["numba"], solvers["numpy"], out["numba"], out["numpy"], 2e-4)

@@ -19,17 +19,15 @@ from mapping.signal import SonarConfig, transmitted_at, tx_period
 from mapping.simulate import TrajectoryLike, iter_blocks, simulate_run
 from mapping.simulate.ism import (
     IsmConfig,
-    delay_at_samples,
     iter_ism_blocks,
     path_table,
     plan_stretch,
     prepare_scene,
-    render_reference,
     render_stretch,
     retarded_delay_scalar,
     simulate_stretch,
 )
-from mapping.simulate.ism._render import _render_numpy
+from tests.mapping.simulate.ism.naive import delay_at_samples, render_numpy, render_reference
 
 CFG1 = SonarConfig(repetitions=1)  # B = P = 4092: fast tests
 CFG2 = SonarConfig(repetitions=2)
@@ -291,7 +289,7 @@ def test_kernel_matches_numpy_twin_across_a_path_appearing(spreading, fractional
     plan = plan_stretch(prepared, traj, cfg, engine, 0, 2000)
     assert np.any(np.diff(plan.gain, axis=1) != 0)  # a path does disappear here
     got = render_stretch(plan, cfg, engine)
-    want = _render_numpy(plan, cfg, engine)
+    want = render_numpy(plan, cfg, engine)
     assert np.max(np.abs(got - want)) < 1e-10 * np.max(np.abs(want))
 
 
