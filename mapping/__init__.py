@@ -11,9 +11,10 @@ Public faces (import from these, never from a private ``_name`` module):
 - `mapping.path`: constant-speed trajectories, built-in paths;
 - `mapping.heatmap`: the Doppler heat map (eq. 1) and its resampling bank;
 - `mapping.grid`: the map G by back-projection (Sec. 2.2, eqs. 2-5);
-- `mapping.wallmap`: G on a Cartesian grid and its cell geometry;
+- `mapping.wallmap`: G on a Cartesian grid, the fitted walls, the observed cells;
+- `mapping.coverage`: the cells the runs observed (range and line of sight);
 - `mapping.reconstruct`: beyond the paper, inverting the back-projection;
-- `mapping.quality`: precision, recall, ghost energy, Chamfer against true walls;
+- `mapping.quality`: wall-level and raster precision/recall against true walls;
 - `mapping.build`: batch map building (processes, dask);
 - `mapping.recording`: real recordings to run blocks and back (pure arrays);
 - `mapping.simulate`: forward models, with `mapping.simulate.ism` (image source, the default)

@@ -17,12 +17,13 @@ import functools
 import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mapping.coverage import coverage_mask
 from mapping.grid import GridExtent, GridParams, accumulate, map_extent, union_extent
 from mapping.heatmap import HeatMap, heatmap_of_run
 from mapping.reconstruct import (
@@ -34,10 +35,18 @@ from mapping.reconstruct import (
 )
 from mapping.run import Run
 from mapping.signal import SonarConfig
-from mapping.wallmap import WallMap
+from mapping.wallmap import WallMap, rasterize_walls
+from mapping.walls import (
+    FittedWalls,
+    PeakObservations,
+    WallFitParams,
+    concat_peaks,
+    fit_walls,
+    run_peaks,
+)
 
 FloatArray = NDArray[np.float64]
-METHODS = ("paper", "inverse")
+METHODS = ("walls", "paper", "inverse")
 
 
 @dataclass(frozen=True)
@@ -65,6 +74,7 @@ class BuildParams:
     method: str = "paper"
     grid: GridParams = field(default_factory=GridParams)
     inverse: InverseParams = field(default_factory=InverseParams)
+    walls: WallFitParams = field(default_factory=WallFitParams)
     heatmap_kwargs: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
@@ -76,6 +86,8 @@ class BuildParams:
         d: dict[str, Any] = {"grid": self.grid.to_dict()}
         if self.method == "inverse":
             d["inverse"] = self.inverse.to_dict()
+        if self.method == "walls":
+            d["walls"] = asdict(self.walls)
         if self.heatmap_kwargs:
             d["heatmap"] = dict(self.heatmap_kwargs)
         return d
@@ -92,6 +104,8 @@ class RunResult:
     extent: GridExtent | None = None
     G: FloatArray | None = None
     observations: Observations | None = None
+    peaks: PeakObservations | None = None
+    poses: FloatArray | None = None
 
 
 def run_heatmaps(run: Run, **kwargs: Any) -> Iterator[HeatMap | None]:
@@ -113,9 +127,21 @@ def process_run(source: RunSource, params: BuildParams) -> RunResult:
     if params.method == "paper":
         G, extent, counts = accumulate(run_heatmaps(run, **kwargs), run.pose, params.grid)
         return RunResult(name, sha, sonar, counts, extent=extent, G=G)
+    if params.method == "walls":
+        return _walls_result(run, source, params)
     obs, counts = observations_from_heatmaps(run_heatmaps(run, **kwargs), run.pose,
                                              params.grid, params.inverse, config=run.config)
     return RunResult(name, sha, sonar, counts, observations=obs)
+
+
+def _walls_result(run: Run, source: RunSource, params: BuildParams) -> RunResult:
+    peaks = run_peaks(run, 0, params.walls.peaks)
+    tracked = np.isfinite(run.pose).all(axis=1)
+    used = np.unique(peaks.block).size
+    counts = {"blocks_used": int(used), "blocks_untracked": int((~tracked).sum()),
+              "blocks_unobservable": int(tracked.sum() - used)}
+    return RunResult(source.name, source.sha256, run.config.to_json(), counts, peaks=peaks,
+                     poses=run.pose[tracked])
 
 
 def check_same_config(results: Sequence[RunResult]) -> SonarConfig:
@@ -141,7 +167,11 @@ def combine(results: Sequence[RunResult], params: BuildParams) -> WallMap:
     provenance = {"runs": [{"path": r.name, "sha256": r.sha256, **r.counts} for r in results],
                   **counts}
     if counts["blocks_used"] == 0:
-        raise ValueError("no tracked, observable block in any run: nothing to map")
+        slow = (f" (method 'walls' needs |speed| >= {params.walls.peaks.min_speed_m_s} m/s)"
+                if params.method == "walls" else "")
+        raise ValueError(f"no tracked, observable block in any run{slow}: nothing to map")
+    if params.method == "walls":
+        return _combine_walls(results, params, config, provenance)
     if params.method == "paper":
         parts = [r for r in results if r.G is not None and r.extent is not None]
         extent = union_extent([r.extent for r in parts if r.extent is not None])
@@ -158,6 +188,41 @@ def combine(results: Sequence[RunResult], params: BuildParams) -> WallMap:
     return WallMap(G=G, origin_m=extent.origin_m, resolution_m=extent.resolution_m,
                    sonar=config.to_json(), method=params.method, params=params.to_dict(),
                    provenance=provenance)
+
+
+def _combine_walls(results: Sequence[RunResult], params: BuildParams, config: SonarConfig,
+                   provenance: dict[str, Any]) -> WallMap:
+    """Fit walls to the peaks of all runs; G is the fitted walls drawn on the grid."""
+    parts = []
+    for i, r in enumerate(results):
+        if r.peaks is not None:
+            parts.append(PeakObservations(**{**r.peaks.__dict__,
+                                             "run": np.full(r.peaks.size, i, dtype=np.int64)}))
+    peaks = concat_peaks(parts)
+    fitted = fit_walls(peaks, config, params.walls)
+    poses = np.concatenate([r.poses for r in results if r.poses is not None])
+    extent = map_extent(poses, params.grid.radius_m, params.grid.resolution_m)
+    G = extent.zeros()
+    x = np.asarray(extent.origin_m[0] + extent.resolution_m * np.arange(extent.shape[1]),
+                   dtype=np.float64)
+    y = np.asarray(extent.origin_m[1] + extent.resolution_m * np.arange(extent.shape[0]),
+                   dtype=np.float64)
+    for wall, s in zip(fitted.walls_m, fitted.strength, strict=True):
+        G = np.maximum(G, s * rasterize_walls(wall[None], x, y))
+    coverage = coverage_mask(poses, x, y, params.walls.peaks.max_range_m, fitted.walls_m)
+    provenance["fit"] = _fit_summary(fitted)
+    return WallMap(G=G, origin_m=extent.origin_m, resolution_m=extent.resolution_m,
+                   sonar=config.to_json(), method=params.method, params=params.to_dict(),
+                   provenance=provenance, walls_m=fitted.walls_m,
+                   wall_strength=np.abs(fitted.strength), wall_sigma=fitted.sigma,
+                   wall_ambiguous=fitted.ambiguous, wall_pair=fitted.pair, coverage=coverage)
+
+
+def _fit_summary(fitted: FittedWalls) -> dict[str, Any]:
+    return {"walls": fitted.n, "candidates": fitted.n_candidates,
+            "ambiguous": int(fitted.ambiguous.sum()),
+            "explained_share": round(fitted.explained_share, 4),
+            "peaks_per_wall": fitted.n_peaks.tolist()}
 
 
 def _add_aligned(G: FloatArray, extent: GridExtent, part: FloatArray, at: GridExtent) -> None:

@@ -3,6 +3,8 @@
 ``write_heatmap_png`` draws a :class:`~mapping.heatmap.HeatMap` as the paper's polar heat map
 (Fig. 2): angle from the direction of travel (up) mirrored to both sides, since the sensor
 cannot tell left from right, range outwards; the peak and, optionally, the truth are marked.
+``write_map_png`` (``draw_map`` on given axes) draws a wall map: G, the fitted walls (colour and
+width by strength, ambiguous mirror hypotheses dashed), the coverage boundary, the true walls.
 """
 
 from __future__ import annotations
@@ -78,12 +80,13 @@ def write_map_png(
     title: str = "",
     scale_percentile: float = 99.0,
 ) -> Path:
-    """Write a wall map G as a PNG (scaled to its ``scale_percentile`` of the positive cells,
-    so retro-reflecting corners do not black out the walls), with the true walls and the
-    tracked poses overlaid when given. Returns ``path``."""
+    """Write a wall map as a PNG: G (scaled to its ``scale_percentile`` of the positive cells,
+    so retro-reflecting corners do not black out the walls), the fitted walls (colour and width
+    by strength, ambiguous mirror hypotheses dashed), the coverage boundary (faint), and the true
+    walls (thin) and tracked poses when given. Returns ``path``."""
     fig, ax = plt.subplots(figsize=(6.5, 6))
-    _draw_map(ax, wallmap, segments, poses, scale_percentile)
-    ax.set_title(title or f"wall map G ({wallmap.method})", fontsize=10)
+    draw_map(ax, wallmap, segments, poses, scale_percentile)
+    ax.set_title(title or f"wall map ({wallmap.method})", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -91,20 +94,48 @@ def write_map_png(
     return path
 
 
-def _draw_map(ax: plt.Axes, wallmap: WallMap, segments: np.ndarray | None,
-              poses: np.ndarray | None, scale_percentile: float = 99.0) -> None:
+def draw_map(ax: plt.Axes, wallmap: WallMap, segments: np.ndarray | None,
+             poses: np.ndarray | None, scale_percentile: float = 99.0) -> None:
+    """Draw ``wallmap`` on ``ax`` (see :func:`write_map_png`); ``segments`` (W, 2, 2) are the
+    true walls, ``poses`` (n, 3) the tracked poses."""
     G = wallmap.G
     pos = G[G > 0]
     scale = float(np.percentile(pos, scale_percentile)) if pos.size else 1.0
     im = ax.imshow(G / scale, origin="lower", extent=wallmap.extent_m, vmin=0, vmax=1,
                    cmap="magma", interpolation="nearest")
+    if not wallmap.coverage.all():
+        ax.contour(wallmap.x_m, wallmap.y_m, wallmap.coverage.astype(float), levels=[0.5],
+                   colors="white", linewidths=0.6, alpha=0.35)
     if segments is not None:
-        for a, b in np.asarray(segments):
-            ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="cyan", lw=0.8, alpha=0.8)
+        for k, (a, b) in enumerate(np.asarray(segments)):
+            ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="cyan", lw=0.6, alpha=0.9, zorder=3,
+                    label="true walls" if k == 0 else None)
+    _draw_walls(ax, wallmap)
     if poses is not None:
         ok = np.isfinite(np.asarray(poses)).all(axis=1)
-        ax.plot(poses[ok, 0], poses[ok, 1], ".", color="white", ms=2)
+        ax.plot(poses[ok, 0], poses[ok, 1], ".", color="white", ms=2, zorder=4)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
     plt.colorbar(im, ax=ax, shrink=0.8, label=f"G / p{scale_percentile:g}(G > 0)")
+    if segments is not None or wallmap.n_walls:
+        ax.legend(loc="upper right", fontsize=7, framealpha=0.6)
+
+
+def _draw_walls(ax: plt.Axes, wallmap: WallMap) -> None:
+    """Fitted walls: colour and width by strength (relative to the strongest), mirrors dashed."""
+    if not wallmap.n_walls:
+        return
+    strength = wallmap.wall_strength
+    rel = strength / strength.max() if strength.max() > 0 else np.ones_like(strength)
+    cmap = plt.get_cmap("viridis")
+    labelled = {False: False, True: False}
+    for (x0, y0, x1, y1), s, ambiguous in zip(wallmap.walls_m, rel, wallmap.wall_ambiguous,
+                                              strict=True):
+        amb = bool(ambiguous)
+        label = None
+        if not labelled[amb]:
+            label = "fitted walls, ambiguous (mirror kept)" if amb else "fitted walls"
+            labelled[amb] = True
+        ax.plot([x0, x1], [y0, y1], "--" if amb else "-", color=cmap(0.45 + 0.55 * float(s)),
+                lw=1.0 + 2.5 * float(s), solid_capstyle="round", label=label)

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 
-def read_npz(path: str | os.PathLike[str], format_name: str, kind: str,
+def read_npz(path: str | os.PathLike[str], format_name: str | tuple[str, ...], kind: str,
              required: Iterable[str]) -> dict[str, Any]:
     """All arrays of the ``.npz`` at ``path`` after checking its ``format`` and keys.
 
@@ -23,7 +23,7 @@ def read_npz(path: str | os.PathLike[str], format_name: str, kind: str,
     path
         The file; ``FileNotFoundError`` propagates unchanged.
     format_name
-        Required value of the ``format`` key.
+        Required value of the ``format`` key, or the accepted values (versions a reader knows).
     kind
         Word for the error message ("run", "map").
     required
@@ -43,8 +43,10 @@ def read_npz(path: str | os.PathLike[str], format_name: str, kind: str,
     except Exception as exc:  # zipfile / numpy errors on truncated or foreign files
         raise ValueError(f"{path}: not a readable .npz {kind} file ({exc})") from exc
     fmt = str(data.get("format", ""))
-    if fmt != format_name:
-        raise ValueError(f"{path}: key 'format' must be {format_name!r}, got {fmt!r}")
+    accepted = (format_name,) if isinstance(format_name, str) else format_name
+    if fmt not in accepted:
+        wanted = repr(accepted[0]) if len(accepted) == 1 else f"one of {list(accepted)}"
+        raise ValueError(f"{path}: key 'format' must be {wanted}, got {fmt!r}")
     missing = [k for k in required if k not in data]
     if missing:
         raise ValueError(f"{path}: missing key(s) {missing}")

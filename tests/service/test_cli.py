@@ -1,7 +1,8 @@
-"""Tests of the ``omnisonar`` command line on files: localize and calibrate."""
+"""The ``omnisonar`` command line on files: localize, calibrate, build-map, evaluate-map."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 from typing import Any
@@ -67,3 +68,88 @@ def test_cli_calibrate_and_localize_with_beta(simulated: tuple[Any, Any], tmp_pa
     assert main(["calibrate", "--map", str(tmp_path / "G.npz"),
                  str(tmp_path / "untracked.npz")]) == 2
     assert "untracked.npz" in capsys.readouterr().err
+
+
+# ---- build-map / evaluate-map (issue 13) ------------------------------------------------------
+def _small_run(scene: str | None) -> Any:
+    from mapping.signal import SonarConfig
+    from mapping.synthetic import Wall, synthetic_run
+
+    run = synthetic_run(SonarConfig(sequence_length=127, repetitions=4), Wall(1.0, 1.2), 0.5,
+                        n_blocks=4)
+    return dataclasses.replace(run, scene=scene)
+
+
+def test_build_map_png_with_unparsable_scene_warns_and_succeeds(
+        tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    """Regression: the map was written, then the PNG's scene overlay raised and the command
+    exited 2. Now: a warning on stderr, a PNG without true walls, exit 0; the other outputs
+    (PGM/YAML, GeoJSON) are written too."""
+    from mapping.files import read_map, write_run
+    from service.cli import main
+
+    run_path = write_run(tmp_path / "r.npz", _small_run('{"name": "broken", "walls": [1, 2]'))
+    out = tmp_path / "m.npz"
+    rc = main(["build-map", str(run_path), "--method", "paper", "--out", str(out),
+               "--radius-m", "1.5", "--png", str(tmp_path / "m.png"),
+               "--pgm", str(tmp_path / "m.pgm"), "--geojson", str(tmp_path / "m.geojson")])
+    captured = capsys.readouterr()
+    assert rc == 0
+    assert "warning" in captured.err and "r.npz" in captured.err and "scene" in captured.err
+    assert (tmp_path / "m.png").stat().st_size > 0 and (tmp_path / "m.yaml").exists()
+    assert read_map(out).method == "paper"
+    assert json.loads((tmp_path / "m.geojson").read_text())["features"] == []
+
+
+def _scene_map(tmp_path: Any) -> tuple[Any, Any]:
+    """A map whose fitted walls are the shoebox's walls plus one ghost, and G drawn on them."""
+    from mapping.files import write_map
+    from mapping.scene import builtin_scene
+    from mapping.wallmap import WallMap, rasterize_walls
+
+    seg = builtin_scene("shoebox").segments()
+    walls = np.vstack([seg.reshape(-1, 4), [[0.5, -1.0, 2.5, -1.0]]])
+    lo, hi = seg.reshape(-1, 2).min(axis=0) - 1.5, seg.reshape(-1, 2).max(axis=0) + 0.5
+    x, y = np.arange(lo[0], hi[0], 0.05), np.arange(lo[1], hi[1], 0.05)
+    G = rasterize_walls(seg.reshape(-1, 4), x, y).astype(np.float64)
+    wm = WallMap(G=G, origin_m=(float(x[0]), float(y[0])), resolution_m=0.05, method="walls",
+                 walls_m=walls)
+    return write_map(tmp_path / "walls.npz", wm), seg
+
+
+def test_evaluate_map_reports_wall_level_and_raster(
+        tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    from service.cli import main
+
+    path, seg = _scene_map(tmp_path)
+    assert main(["evaluate-map", str(path), "--scene", "builtin:shoebox", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    walls, raster = report["walls"], report["raster"]
+    assert walls["recall"] == 1.0 and walls["n_found"] == len(seg)
+    assert walls["false_walls"] == [len(seg)] and walls["precision"] == pytest.approx(
+        len(seg) / (len(seg) + 1))
+    assert walls["angle_error_deg_max"] == pytest.approx(0.0, abs=1e-6)
+    assert raster["precision"] == 1.0 and raster["recall"] == 1.0 and raster["fraction"] == 0.2
+    assert len(report["fraction_of_p99"]["at"]) == 3 and "ghost_energy" in report[
+        "fraction_of_p99"]
+    assert main(["evaluate-map", str(path), "--scene", "builtin:shoebox"]) == 0
+    text = capsys.readouterr().out
+    assert "walls:  precision" in text and "recall 1.000" in text
+    assert "x max(G) inside coverage" in text and "fraction_of_p99" in text
+    assert main(["evaluate-map", str(path), "--scene", "builtin:shoebox",
+                 "--p99-fractions", "a"]) == 2
+    assert "--p99-fractions" in capsys.readouterr().err
+
+
+def test_build_and_evaluate_map_help_show_defaults() -> None:
+    from service.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    build, evaluate = sub.choices["build-map"], sub.choices["evaluate-map"]
+    assert "(default: walls)" in " ".join(build.format_help().split())
+    assert "(default: 0.05)" in " ".join(build.format_help().split())
+    help_eval = " ".join(evaluate.format_help().split())
+    assert "(default: 0.2)" in help_eval and "(default: 0.8)" in help_eval
+    args = parser.parse_args(["build-map", "r.npz", "--out", "m.npz"])
+    assert args.method == "walls" and args.geojson is None

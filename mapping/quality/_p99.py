@@ -1,29 +1,5 @@
-"""Map quality against the true walls: precision, recall, ghost energy, Chamfer distance.
-
-The paper shows its maps as images only; these numbers make maps comparable.
-
-Definitions (``G`` the map, ``D(c)`` the distance from cell centre ``c`` to the nearest true
-wall segment):
-
-strong cell
-    ``G(c) >= fraction * P``, with ``P`` the ``percentile`` (99 by default) of the map's
-    *positive* cells (the empty margin around the runs would otherwise drag it to 0).
-    Corners retro-reflect into the same cell from every pose and dominate ``max(G)``, which is
-    why a high percentile, not the maximum, sets the scale; results are reported at several
-    fractions.
-precision
-    Share of strong cells with ``D(c) <= tol_m`` (10 cm).
-recall
-    Share of the true wall length (walls sampled every ``resolution / 4``) lying within
-    ``tol_m`` of a strong cell centre.
-ghost energy
-    ``sum(G[D > ghost_m]) / sum(G)`` with ``ghost_m`` = 20 cm: the share of the map's energy
-    farther than 20 cm from any wall (mirror images, multiple-reflection images, noise).
-    Independent of the threshold.
-Chamfer distance
-    Symmetric mean: ``(mean over strong cells of D + mean over wall samples of the distance to
-    the nearest strong cell) / 2``, in metres.
-"""
+"""The percentile-relative figures (``fraction_of_p99``): thresholds at fractions of the 99th
+percentile of the positive cells over the whole map, ghost energy, Chamfer distance."""
 
 from __future__ import annotations
 
@@ -35,9 +11,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mapping.quality._geometry import cell_centres, distance_to_walls, wall_samples
 from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
+
 
 #: Threshold fractions reported by default.
 DEFAULT_FRACTIONS: tuple[float, ...] = (0.25, 0.5, 0.75)
@@ -45,7 +23,7 @@ DEFAULT_FRACTIONS: tuple[float, ...] = (0.25, 0.5, 0.75)
 
 @dataclass(frozen=True)
 class QualityAtThreshold:
-    """Precision, recall and Chamfer distance at one strong-cell threshold."""
+    """Precision, recall and Chamfer distance at one threshold relative to the p99 of G > 0."""
 
     fraction: float
     threshold: float
@@ -57,7 +35,7 @@ class QualityAtThreshold:
 
 @dataclass(frozen=True)
 class MapQuality:
-    """Quality of a map against true walls (see the module docstring for the definitions)."""
+    """Percentile-relative quality of a map (``fraction_of_p99``, see the module docstring)."""
 
     ghost_energy: float
     percentile: float
@@ -80,48 +58,6 @@ class MapQuality:
                          f"got {fraction}")
 
 
-def _check_segments(segments: FloatArray) -> FloatArray:
-    seg = np.asarray(segments, dtype=np.float64)
-    if seg.ndim != 3 or seg.shape[1:] != (2, 2) or seg.shape[0] < 1:
-        raise ValueError(f"segments must have shape (W >= 1, 2, 2), got {seg.shape}")
-    if not np.all(np.isfinite(seg)):
-        raise ValueError("segments contains NaN or inf")
-    return seg
-
-
-def distance_to_walls(points: FloatArray, segments: FloatArray) -> FloatArray:
-    """Euclidean distance from each point (..., 2) to the nearest segment of (W, 2, 2)."""
-    seg = _check_segments(segments)
-    p = np.asarray(points, dtype=np.float64)
-    flat = p.reshape(-1, 2)
-    best = np.full(flat.shape[0], np.inf)
-    for a, b in seg:
-        ab = b - a
-        denom = float(ab @ ab)
-        t = np.zeros(flat.shape[0]) if denom == 0 else np.clip((flat - a) @ ab / denom, 0, 1)
-        d = np.hypot(*(flat - (a + t[:, None] * ab)).T)
-        best = np.minimum(best, d)
-    return best.reshape(p.shape[:-1])
-
-
-def wall_samples(segments: FloatArray, spacing_m: float) -> FloatArray:
-    """Points along every segment at most ``spacing_m`` apart, shape (n, 2)."""
-    seg = _check_segments(segments)
-    if not spacing_m > 0:
-        raise ValueError(f"spacing_m must be > 0, got {spacing_m}")
-    pts = []
-    for a, b in seg:
-        n = max(int(math.ceil(np.hypot(*(b - a)) / spacing_m)), 1)
-        t = (np.arange(n) + 0.5) / n
-        pts.append(a + t[:, None] * (b - a))
-    return np.concatenate(pts)
-
-
-def cell_centres(wallmap: WallMap) -> FloatArray:
-    """World coordinates of every cell centre, shape (ny, nx, 2)."""
-    x, y = np.meshgrid(wallmap.x_m, wallmap.y_m)
-    return np.stack([x, y], axis=-1)
-
 
 def strong_threshold(G: FloatArray, fraction: float, percentile: float = 99.0) -> float:
     """``fraction`` times the ``percentile`` of the positive cells of ``G`` (inf if none)."""
@@ -139,7 +75,12 @@ def evaluate(
     wallmap: WallMap, segments: FloatArray, fractions: tuple[float, ...] = DEFAULT_FRACTIONS,
     tol_m: float = 0.10, ghost_m: float = 0.20, percentile: float = 99.0,
 ) -> MapQuality:
-    """Precision, recall, ghost energy and Chamfer distance of ``wallmap`` against walls.
+    """Percentile-relative figures of ``wallmap`` against walls (``fraction_of_p99``).
+
+    Precision, recall and Chamfer distance with strong-cell thresholds relative to the
+    ``percentile`` of the positive cells over the whole map, and the ghost energy (see the
+    module docstring: these are not the figures that say how good a map is; use
+    :func:`evaluate_map`).
 
     Parameters
     ----------
@@ -178,3 +119,5 @@ def evaluate(
         ))
     return MapQuality(ghost_energy=ghost, percentile=percentile, tol_m=tol_m, ghost_m=ghost_m,
                       at=tuple(at))
+
+

@@ -1,0 +1,371 @@
+"""The echo list: specular image-source paths of wall segments seen from a moving sonar.
+
+:class:`WallSet` holds the walls the model knows, :class:`ForwardParams` the limits;
+:func:`echoes` gives the :class:`Echoes` of one pose, :func:`echoes_batch` the
+:class:`EchoBatch` of many (numba, parallel over poses). The path enumeration and tracing
+are the kernel ``_kernels._batch_echoes``; this module validates and converts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mapping.forward._kernels import _batch_echoes, _Limits, _Out, _single_echoes, _Walls
+from mapping.signal import SonarConfig
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Allowed values of ``ForwardParams.spreading`` and their amplitude exponent p (1 / L**p).
+SPREADING_POWER = {"3d": 1.0, "2d": 0.5}
+#: Highest reflection order the model enumerates.
+MAX_ORDER = 4
+
+
+@dataclass(frozen=True)
+class WallSet:
+    """Walls the forward model knows.
+
+    Attributes
+    ----------
+    segments_m : ndarray, shape (n, 2, 2)
+        End points ``[[x0, y0], [x1, y1]]`` in metres; n may be 0.
+    strength : ndarray, shape (n,)
+        Amplitude reflection factor of each wall (rigid = 1; may be a signed R).
+    """
+
+    segments_m: FloatArray
+    strength: FloatArray
+
+    def __post_init__(self) -> None:
+        seg = np.asarray(self.segments_m, dtype=np.float64)
+        if seg.ndim != 3 or seg.shape[1:] != (2, 2):
+            raise ValueError(f"WallSet.segments_m must have shape (n, 2, 2), got {seg.shape}")
+        if not np.all(np.isfinite(seg)):
+            raise ValueError("WallSet.segments_m must be finite")
+        if np.any(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1) <= 1e-9):
+            raise ValueError("WallSet.segments_m must have non-zero length segments")
+        strength = np.asarray(self.strength, dtype=np.float64)
+        if strength.shape != (seg.shape[0],) or not np.all(np.isfinite(strength)):
+            raise ValueError(
+                f"WallSet.strength must be finite with shape ({seg.shape[0]},), "
+                f"got shape {strength.shape}"
+            )
+        seg, strength = seg.copy(), strength.copy()
+        seg.setflags(write=False)
+        strength.setflags(write=False)
+        object.__setattr__(self, "segments_m", seg)
+        object.__setattr__(self, "strength", strength)
+
+    @property
+    def n(self) -> int:
+        """Number of walls."""
+        return int(self.strength.size)
+
+    @classmethod
+    def from_scene(cls, scene: Any) -> WallSet:
+        """Walls of a scene (``scene.segments()``, ``scene.reflection_coefficients()``)."""
+        return cls(np.asarray(scene.segments(), dtype=np.float64).reshape(-1, 2, 2),
+                   np.asarray(scene.reflection_coefficients(), dtype=np.float64))
+
+    @classmethod
+    def from_array(cls, walls_m: ArrayLike, strength: ArrayLike | None = None) -> WallSet:
+        """Walls from rows ``x0, y0, x1, y1`` (n, 4); ``strength`` None means rigid (1)."""
+        arr = np.asarray(walls_m, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[1] != 4:
+            if arr.size == 0:
+                arr = arr.reshape(0, 4)
+            else:
+                raise ValueError(f"walls_m must have shape (n, 4), got {arr.shape}")
+        s = np.ones(arr.shape[0]) if strength is None else np.asarray(strength, dtype=np.float64)
+        return cls(arr.reshape(-1, 2, 2), s)
+
+
+@dataclass(frozen=True)
+class ForwardParams:
+    """Limits of the echo enumeration.
+
+    Attributes
+    ----------
+    max_order : int
+        Highest reflection order enumerated (1..4); see :func:`mapping.forward.required_order`.
+    spreading : {"3d", "2d"}
+        Amplitude ``1 / L**p`` with L the round-trip path, p = 1 (``3d``, a real robot) or
+        1/2 (``2d``, a 2-D simulation), as ``IsmConfig.spreading``.
+    max_range_m : float or None
+        One-way range cap (half the round trip); None is the unambiguous range c P / (2 fs).
+    min_amplitude : float
+        Drop echoes whose |amplitude| is below this (heat-map units).
+    """
+
+    max_order: int = 2
+    spreading: str = "3d"
+    max_range_m: float | None = None
+    min_amplitude: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.max_order, int | np.integer) or not 1 <= self.max_order <= MAX_ORDER:
+            raise ValueError(
+                f"ForwardParams.max_order must be an integer in 1..{MAX_ORDER}, "
+                f"got {self.max_order!r}")
+        if self.spreading not in SPREADING_POWER:
+            raise ValueError(
+                f"ForwardParams.spreading must be one of {tuple(SPREADING_POWER)}, "
+                f"got {self.spreading!r}")
+        if self.max_range_m is not None and not (
+                math.isfinite(self.max_range_m) and self.max_range_m > 0):
+            raise ValueError(
+                f"ForwardParams.max_range_m must be None or > 0, got {self.max_range_m!r}")
+        if not (math.isfinite(self.min_amplitude) and self.min_amplitude >= 0):
+            raise ValueError(
+                f"ForwardParams.min_amplitude must be >= 0, got {self.min_amplitude!r}")
+
+
+#: The default limits (order 2, 3-D spreading, the unambiguous range, no amplitude floor).
+DEFAULT_PARAMS = ForwardParams()
+
+
+@dataclass(frozen=True)
+class Echoes:
+    """The k specular echoes of one pose, sorted by range.
+
+    Attributes
+    ----------
+    range_m : ndarray, shape (k,)
+        One-way equivalent range: half the retarded round-trip path of the echo heard at the
+        block centre (where eq. 1 puts the peak).
+    cos_doppler : ndarray, shape (k,)
+        ``(cos(departure) + cos(arrival)) / 2`` w.r.t. the direction of travel: the Doppler
+        the echo carries (the eq. 1 row that undoes it has ``cos theta = cos_doppler``).
+    angle_rad : ndarray, shape (k,)
+        ``arccos(clip(cos_doppler))`` in [0, pi]: the heat-map row it lands in (folded).
+    amplitude : ndarray, shape (k,)
+        Product of the wall strengths over ``L**p`` (heat-map units: a matched unit echo
+        peaks at 1).
+    order : ndarray of int, shape (k,)
+    walls : ndarray of int, shape (k, max_order)
+        Wall indices in the order the sound hits them, -1 padded.
+    points_m : ndarray, shape (k, max_order, 2)
+        Specular points, NaN padded.
+    arrival_bearing_rad : ndarray, shape (k,)
+        World-frame direction from the robot toward the last specular point.
+    spreading : str
+        The spreading the amplitudes were computed with (decides the heard waveform when
+        rendering).
+    """
+
+    range_m: FloatArray
+    cos_doppler: FloatArray
+    angle_rad: FloatArray
+    amplitude: FloatArray
+    order: IntArray
+    walls: IntArray
+    points_m: FloatArray
+    arrival_bearing_rad: FloatArray
+    spreading: str = field(default="3d")
+
+    @property
+    def k(self) -> int:
+        """Number of echoes."""
+        return int(self.range_m.size)
+
+
+@dataclass(frozen=True)
+class EchoBatch:
+    """Echoes of n poses in padded arrays (n, kmax); row i holds ``count[i]`` echoes.
+
+    Fields as :class:`Echoes` with a leading pose axis; padding is NaN for floats, 0 for
+    ``order``, -1 for ``walls``. ``echoes_of(i)`` returns pose i as an :class:`Echoes`.
+    """
+
+    count: IntArray
+    range_m: FloatArray
+    cos_doppler: FloatArray
+    angle_rad: FloatArray
+    amplitude: FloatArray
+    order: IntArray
+    walls: IntArray
+    points_m: FloatArray
+    arrival_bearing_rad: FloatArray
+    spreading: str = field(default="3d")
+
+    def echoes_of(self, i: int) -> Echoes:
+        """The echoes of pose ``i``."""
+        k = int(self.count[i])
+        return Echoes(
+            self.range_m[i, :k], self.cos_doppler[i, :k], self.angle_rad[i, :k],
+            self.amplitude[i, :k], self.order[i, :k], self.walls[i, :k], self.points_m[i, :k],
+            self.arrival_bearing_rad[i, :k], self.spreading,
+        )
+
+
+def _kernel_walls(walls: WallSet) -> _Walls:
+    seg = walls.segments_m
+    d = seg[:, 1] - seg[:, 0]
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1)[:, None]
+    A = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
+    b = 2.0 * np.sum(seg[:, 0] * n, axis=1)[:, None] * n
+    return _Walls(np.ascontiguousarray(seg[:, 0]), np.ascontiguousarray(d),
+                  np.ascontiguousarray(A), np.ascontiguousarray(b),
+                  np.ascontiguousarray(walls.strength, dtype=np.float64))
+
+
+def _limits(speed_m_s: float, config: SonarConfig, params: ForwardParams) -> _Limits:
+    if not isinstance(config, SonarConfig):
+        raise ValueError(f"config must be a SonarConfig, got {type(config).__name__}")
+    if not isinstance(params, ForwardParams):
+        raise ValueError(f"params must be a ForwardParams, got {type(params).__name__}")
+    try:
+        v = float(speed_m_s)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"speed_m_s must be a real number, got {speed_m_s!r}") from exc
+    c = config.sound_speed_m_s
+    if not math.isfinite(v) or abs(v) >= c / 10.0:
+        raise ValueError(f"speed_m_s must be finite with |speed_m_s| < c/10, got {v}")
+    max_range = config.max_range_m if params.max_range_m is None else params.max_range_m
+    return _Limits(int(params.max_order), 2.0 * float(max_range), float(params.min_amplitude),
+                   float(c), SPREADING_POWER[params.spreading], v)
+
+
+def _check_walls(walls: WallSet) -> None:
+    if not isinstance(walls, WallSet):
+        raise ValueError(f"walls must be a WallSet, got {type(walls).__name__}")
+
+
+def _capacity(n_walls: int, max_order: int) -> int:
+    """Upper bound on the paths of one pose (wall sequences without repeats), capped."""
+    total = sum(n_walls * max(n_walls - 1, 0) ** (k - 1) for k in range(1, max_order + 1))
+    return max(1, min(total, 64))
+
+
+def _empty_out(n: int, cap: int, max_order: int) -> _Out:
+    return _Out(
+        np.zeros(n, dtype=np.int64), np.full((n, cap), np.nan), np.full((n, cap), np.nan),
+        np.full((n, cap), np.nan), np.zeros((n, cap), dtype=np.int64),
+        np.full((n, cap, max_order), -1, dtype=np.int64),
+        np.full((n, cap, max_order, 2), np.nan), np.full((n, cap), np.nan),
+    )
+
+
+def _run(walls: WallSet, poses: FloatArray, lim: _Limits, single: bool) -> _Out:
+    n = poses.shape[0]
+    cap = _capacity(walls.n, lim.max_order)
+    while True:
+        out = _empty_out(n, cap, lim.max_order)
+        if walls.n and n:
+            if single:
+                _single_echoes(_kernel_walls(walls), lim, poses[0], out)
+            else:
+                _batch_echoes(_kernel_walls(walls), lim, poses, out)
+        most = int(out.n_found.max()) if n else 0
+        if most <= cap:
+            return out
+        cap = most  # rare: more paths than the first guess; run again with room for all
+
+
+def echoes(
+    walls: WallSet,
+    pose: ArrayLike,
+    speed_m_s: float,
+    config: SonarConfig,
+    params: ForwardParams = DEFAULT_PARAMS,
+) -> Echoes:
+    """Specular echoes heard at the block centre from ``pose`` (the heat map's ``Run.pose``).
+
+    Parameters
+    ----------
+    walls : WallSet
+    pose : array_like, shape (3,)
+        ``x, y`` in metres and the heading in radians (world frame).
+    speed_m_s : float
+        Signed odometry speed; the direction of travel is the heading for ``speed >= 0`` and
+        heading + pi for ``speed < 0`` (as :func:`mapping.heatmap.doppler_heatmap`). At 0 the
+        Doppler cosines are still given relative to the heading.
+    config : SonarConfig
+    params : ForwardParams
+
+    Returns
+    -------
+    Echoes
+        Sorted by range; only paths with one-way range <= ``max_range_m``.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter (walls, pose, speed_m_s, config, params).
+
+    Notes
+    -----
+    Paths are the specular image-source paths of a monostatic sonar: the image of the
+    sonar position S after reflections in walls w1..wk is the affine map ``I = A S + b``;
+    the path exists when tracing back from S towards I meets the walls in turn on their
+    finite segments and no leg crosses another wall. A zero-length leg (two bounces at one
+    point) is accepted only in an inside corner (air-side angle < 180 deg); outside corners
+    only diffract. Paths with the same map (e.g. (i, j) and (j, i) of a 90 deg corner) count
+    once, as in the image-source engine.
+
+    Doppler (derivation): with the sonar at ``S(t) = S_c + v (t - t_c)``, the delay of the
+    echo heard at t solves ``c tau = |S(t) - A S(t - tau) - b|``; differentiating,
+    ``tau' = u.(v - A v) / (c - u.A v)`` with u the unit vector from I to S. The arrival
+    direction is -u, the departure direction ``A^T u``, so ``u.(v - A v) =
+    -2 |v| (cos_dep + cos_arr) / 2``: eq. 1's row with ``cos theta = cos_doppler`` undoes it
+    (to first order in v / c, ~3e-4). Retardation: the echo heard at t_c left at
+    ``t_c - L / c``, so ``L = |D + A v L / c|`` with ``D = S_c - I_c``, solved exactly
+    (a quadratic); for a wall ahead L = L0 (1 + v / c) to first order (mm level).
+    """
+    _check_walls(walls)
+    lim = _limits(speed_m_s, config, params)
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"pose must be 3 finite numbers (x, y, heading), got {pose!r}")
+    batch = _to_batch(_run(walls, p[None].copy(), lim, single=True), params.spreading)
+    return batch.echoes_of(0)
+
+
+def echoes_batch(
+    walls: WallSet,
+    poses: ArrayLike,
+    speed_m_s: float,
+    config: SonarConfig,
+    params: ForwardParams = DEFAULT_PARAMS,
+) -> EchoBatch:
+    """Echoes of many poses in one call (numba, parallel over poses): see :func:`echoes`.
+
+    Parameters
+    ----------
+    poses : array_like, shape (n, 3)
+        ``x, y, heading`` of each pose (e.g. particles), all at the same speed.
+
+    Returns
+    -------
+    EchoBatch
+        Padded arrays (n, kmax), ``kmax`` the largest count, each row sorted by range.
+    """
+    _check_walls(walls)
+    lim = _limits(speed_m_s, config, params)
+    p = np.asarray(poses, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
+        raise ValueError(f"poses must be finite with shape (n, 3), got shape {p.shape}")
+    return _to_batch(_run(walls, np.ascontiguousarray(p), lim, single=False), params.spreading)
+
+
+def _to_batch(out: _Out, spreading: str) -> EchoBatch:
+    kmax = int(out.n_found.max()) if out.n_found.size else 0
+    cos = out.cos_doppler[:, :kmax]
+    return EchoBatch(
+        count=out.n_found,
+        range_m=out.path_m[:, :kmax] / 2.0,
+        cos_doppler=cos,
+        angle_rad=np.arccos(np.clip(cos, -1.0, 1.0)),
+        amplitude=out.amplitude[:, :kmax],
+        order=out.order[:, :kmax],
+        walls=out.walls[:, :kmax],
+        points_m=out.points[:, :kmax],
+        arrival_bearing_rad=out.bearing[:, :kmax],
+        spreading=spreading,
+    )

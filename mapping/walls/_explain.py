@@ -1,0 +1,143 @@
+"""Which echo peaks a set of walls explains, by the forward model (mapping.forward)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mapping.forward import ForwardParams, WallSet, echoes_batch
+from mapping.signal import SonarConfig
+from mapping.walls._peaks import PeakObservations
+
+BoolArray = NDArray[np.bool_]
+IntArray = NDArray[np.int64]
+
+
+def explained(obs: PeakObservations, walls: WallSet, config: SonarConfig, max_order: int,
+              range_tol_m: float, cos_tol: float, min_order: int = 1,
+              must_use: int = -1) -> BoolArray:
+    """Peaks matched by a predicted echo of ``walls`` (range and Doppler cosine within tol).
+
+    Only echoes of order >= ``min_order`` count, and, if ``must_use`` >= 0, only echoes whose
+    path touches wall ``must_use``.
+    """
+    out = np.zeros(obs.size, dtype=bool)
+    if obs.size == 0 or walls.n == 0:
+        return out
+    key = obs.run * 1_000_000 + obs.block
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(obs.size)[::-1]
+    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    batch = echoes_batch(walls, poses, 0.0, config, ForwardParams(max_order=max_order))
+    ok = (batch.order >= min_order)
+    if must_use >= 0:
+        ok &= np.any(batch.walls == must_use, axis=2)
+    ok &= np.arange(batch.range_m.shape[1])[None, :] < batch.count[:, None]
+    r = np.where(ok, batch.range_m, np.nan)
+    c = np.where(ok, batch.cos_doppler, np.nan)
+    if max_order >= 2 and min_order <= 2:
+        vr, vc = vertex_echoes(walls, poses, must_use)
+        r, c = np.concatenate([r, vr], axis=1), np.concatenate([c, vc], axis=1)
+    r, c = r[inv], c[inv]
+    dr = np.abs(r - obs.range_m[:, None])
+    dc = np.abs(c - np.cos(obs.angle_rad)[:, None])
+    match = (dr <= range_tol_m) & (dc <= cos_tol)
+    out[:] = np.any(match, axis=1)
+    return out
+
+
+def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.asarray(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
+
+
+def shared_vertices(walls: WallSet, tol_m: float = 0.05
+                    ) -> list[tuple[int, int, NDArray[np.float64]]]:
+    """Pairs of walls with an end each within ``tol_m`` of the other: (i, j, vertex)."""
+    seg = walls.segments_m
+    out = []
+    for i in range(walls.n):
+        for j in range(i + 1, walls.n):
+            for ei in range(2):
+                for ej in range(2):
+                    if np.hypot(*(seg[i, ei] - seg[j, ej])) <= tol_m:
+                        out.append((i, j, 0.5 * (seg[i, ei] + seg[j, ej])))
+    return out
+
+
+def vertex_echoes(walls: WallSet, poses: NDArray[np.float64],
+                  must_use: int = -1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Retro-reflection at shared vertices of inside corners: (range, cos) per pose (n, m).
+
+    The monostatic two-bounce echo of a right-angle corner bounces at the vertex itself
+    (range ``|C - p|``, Doppler of the direction to C). A fitted corner is never exactly
+    90 deg, and the exact image paths of a corner a fraction of a degree off either vanish
+    or split; this keeps the echo the sonar hears. Valid where the pose lies inside the
+    convex wedge of the two walls and the line of sight to C is clear.
+    """
+    corners = [v for v in shared_vertices(walls) if must_use < 0 or must_use in v[:2]]
+    n = poses.shape[0]
+    r = np.full((n, len(corners)), np.nan)
+    c = np.full((n, len(corners)), np.nan)
+    seg = walls.segments_m
+    p = poses[:, :2]
+    for m, (i, j, C) in enumerate(corners):
+        ea = _far_end(seg[i], C) - C
+        eb = _far_end(seg[j], C) - C
+        k = float(_cross(ea, eb))
+        if abs(k) < 1e-9:
+            continue
+        q = p - C
+        inside = (_cross(np.broadcast_to(ea, q.shape), q) * k > 0) & \
+                 (_cross(q, np.broadcast_to(eb, q.shape)) * k > 0)
+        clear = ~_blocked_to(p, C, seg, exclude=(i, j))
+        d = np.hypot(q[:, 0], q[:, 1])
+        bearing = np.arctan2(-q[:, 1], -q[:, 0])
+        ok = inside & clear
+        r[ok, m] = d[ok]
+        c[ok, m] = np.cos(bearing - poses[:, 2])[ok]
+    return r, c
+
+
+def _far_end(seg: NDArray[np.float64], C: NDArray[np.float64]) -> NDArray[np.float64]:
+    d0, d1 = np.hypot(*(seg[0] - C)), np.hypot(*(seg[1] - C))
+    return np.asarray(seg[1] if d0 < d1 else seg[0])
+
+
+def _blocked_to(p: NDArray[np.float64], C: NDArray[np.float64], seg: NDArray[np.float64],
+                exclude: tuple[int, int]) -> NDArray[np.bool_]:
+    """Whether a wall other than ``exclude`` crosses the leg from each p to C."""
+    out = np.zeros(p.shape[0], dtype=bool)
+    r = C - p
+    for w in range(seg.shape[0]):
+        if w in exclude:
+            continue
+        a, d = seg[w, 0], seg[w, 1] - seg[w, 0]
+        den = _cross(r, np.broadcast_to(d, r.shape))
+        q = a - p
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = _cross(q, np.broadcast_to(d, r.shape)) / den
+            u = _cross(q, r) / den
+        out |= (np.abs(den) > 1e-15) & (s > 1e-9) & (s < 1 - 1e-9) & (u >= 0) & (u <= 1)
+    return out
+
+
+def occluded(obs: PeakObservations, normal_rad: float, walls: WallSet) -> BoolArray:
+    """Peaks whose first-order echo off the line of normal ``normal_rad`` would have to pass
+    through one of ``walls``: the leg from the pose to the specular point ``p + r n`` is
+    blocked (a wall behind a wall is heard only by multiple bounces)."""
+    p = np.stack([obs.x_m, obs.y_m], axis=1)
+    n = np.array([np.cos(normal_rad), np.sin(normal_rad)])
+    q = p + obs.range_m[:, None] * n
+    out = np.zeros(obs.size, dtype=bool)
+    seg = walls.segments_m
+    r = q - p
+    for w in range(walls.n):
+        a, d = seg[w, 0], seg[w, 1] - seg[w, 0]
+        den = _cross(r, np.broadcast_to(d, r.shape))
+        qa = a - p
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = _cross(qa, np.broadcast_to(d, r.shape)) / den
+            u = _cross(qa, r) / den
+        out |= (np.abs(den) > 1e-15) & (s > 1e-9) & (s < 1 - 0.02) & (u >= 0) & (u <= 1)
+    return out

@@ -1,0 +1,603 @@
+"""Fit a vector wall map to echo peaks: candidates from Hough votes, kept by the data.
+
+Greedy, one line at a time (see :func:`fit_walls`):
+
+1. Vote every unexplained peak's tangent lines into a Hough space; the strongest cell is the
+   next candidate line; its inliers (range within ``range_tol_m``, Doppler cosine within
+   ``cos_tol``) are refined by a robust least-squares line fit (ranges and cosines).
+2. The candidate's specular points along the line give its extent; gaps longer than
+   ``gap_m`` split it into pieces; a piece needs ``min_blocks`` blocks and ``min_length_m``.
+3. A piece is kept when it pays for its four parameters: the log-likelihood of its peaks as
+   echoes (Gaussian range residual) against clutter (uniform over the range window) must
+   exceed the BIC penalty ``2 ln(n_peaks)``; and its peaks must not already be explained by
+   multi-bounce echoes of the walls kept so far (the forward model, order 2: parallel-wall
+   flutter and corner paths are not walls).
+4. After the greedy pass every wall is checked again against all the others (leave one out),
+   ends are joined at inside corners, and a straight path's left/right mirror is kept as a
+   flagged pair, never resolved by guess.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mapping.forward import SPREADING_POWER, WallSet
+from mapping.signal import SonarConfig
+from mapping.walls._explain import explained, occluded
+from mapping.walls._lines import (
+    LineFit,
+    fit_line,
+    inliers,
+    smoothed,
+    specular_points,
+    vote,
+)
+from mapping.walls._peaks import PeakObservations, PeakParams
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class WallFitParams:
+    """Parameters of the wall fit (defaults tuned on the built-in scenes only).
+
+    Parameters
+    ----------
+    peaks : PeakParams
+        How echoes are read off each heat map.
+    cos_tol : float
+        Doppler-cosine tolerance of votes and inliers (about the eq. 1 beam half-width).
+    phi_step_rad, rho_step_m : float
+        Hough cell size.
+    range_tol_m : float
+        Range tolerance of an inlier.
+    range_sigma_m : float
+        Range noise of a peak (likelihood and line fit).
+    min_blocks : int
+        A wall must be heard in at least this many blocks.
+    min_length_m : float
+        Shortest wall piece kept.
+    gap_m : float
+        Specular points farther apart than this along a line split it into pieces.
+    max_walls : int
+        Cap on the greedy pass.
+    explained_share : float
+        A candidate whose peak weight is at least this share explained by multi-bounce echoes
+        of the other walls is a ghost.
+    max_order : int
+        Highest order of the forward model used to explain ghosts.
+    corner_snap_m : float
+        Ends of two walls are joined at their intersection when it lies within this distance.
+    straight_tol_m : float
+        If every pose that heard a wall lies within this of one straight line, the wall's side
+        cannot be told: the mirror line is kept too and both are flagged ambiguous.
+    """
+
+    peaks: PeakParams = field(default_factory=PeakParams)
+    cos_tol: float = 0.15
+    phi_step_rad: float = math.radians(1.0)
+    rho_step_m: float = 0.02
+    range_tol_m: float = 0.03
+    range_sigma_m: float = 0.01
+    min_blocks: int = 4
+    min_length_m: float = 0.15
+    gap_m: float = 0.6
+    max_walls: int = 40
+    explained_share: float = 0.5
+    max_order: int = 4
+    corner_snap_m: float = 0.5
+    straight_tol_m: float = 0.03
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("cos_tol", 0 < self.cos_tol <= 1),
+            ("phi_step_rad", 0 < self.phi_step_rad <= 0.2),
+            ("rho_step_m", 0 < self.rho_step_m <= 0.5),
+            ("range_tol_m", 0 < self.range_tol_m <= 1),
+            ("range_sigma_m", 0 < self.range_sigma_m <= 1),
+            ("min_blocks", 1 <= self.min_blocks <= 1000),
+            ("min_length_m", 0 <= self.min_length_m <= 10),
+            ("gap_m", 0 < self.gap_m <= 100),
+            ("max_walls", 1 <= self.max_walls <= 500),
+            ("explained_share", 0 < self.explained_share <= 1),
+            ("max_order", 1 <= self.max_order <= 4),
+            ("corner_snap_m", 0 <= self.corner_snap_m <= 5),
+            ("straight_tol_m", 0 <= self.straight_tol_m <= 1),
+        )
+        for name, ok in checks:
+            if not ok:
+                raise ValueError(f"WallFitParams.{name} out of range: {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One wall piece found by the greedy pass, before the final checks."""
+
+    line: LineFit
+    a_m: FloatArray
+    b_m: FloatArray
+    members: NDArray[np.int64]
+    gain: float
+    ambiguous: bool = False
+    pair: int = -1
+
+
+def _pieces(s: FloatArray, blocks: NDArray[np.int64], gap_m: float, min_blocks: int,
+            min_length_m: float) -> list[NDArray[np.int64]]:
+    """Index groups of positions ``s`` along a line split at gaps, long and heard enough."""
+    order = np.argsort(s, kind="stable")
+    cuts = np.nonzero(np.diff(s[order]) > gap_m)[0] + 1
+    out = []
+    for grp in np.split(order, cuts):
+        if np.unique(blocks[grp]).size >= min_blocks and np.ptp(s[grp]) >= min_length_m:
+            out.append(grp)
+    return out
+
+
+def _gain(residual: FloatArray, sigma_m: float, span_m: float, n_total: int) -> float:
+    """Log-likelihood ratio echo vs clutter of the peaks, minus the BIC cost of 4 parameters."""
+    loglik = -0.5 * (residual / sigma_m) ** 2 - math.log(math.sqrt(2 * math.pi) * sigma_m)
+    clutter = -math.log(span_m)
+    return float(np.sum(np.maximum(loglik - clutter, 0.0)) - 2.0 * math.log(max(n_total, 2)))
+
+
+def _straight(x: FloatArray, y: FloatArray, tol_m: float) -> tuple[bool, FloatArray, FloatArray]:
+    """Whether points lie on one line (within ``tol_m``); the line's point and direction."""
+    pts = np.stack([x, y], axis=1)
+    c = pts.mean(axis=0)
+    if pts.shape[0] < 2:
+        return True, c, np.array([1.0, 0.0])
+    _, sv, vt = np.linalg.svd(pts - c, full_matrices=False)
+    d = vt[0]
+    off = np.abs((pts - c) @ np.array([-d[1], d[0]]))
+    return bool(off.max() <= tol_m), c, d
+
+
+def _mirror_line(phi: float, rho: float, c: FloatArray, d: FloatArray) -> tuple[float, float]:
+    """The line (phi, rho) reflected across the line through ``c`` along ``d``."""
+    n = np.array([math.cos(phi), math.sin(phi)])
+    nm = 2 * (n @ d) * d - n
+    # a point of the line, mirrored
+    q = n * rho
+    qm = c + 2 * ((q - c) @ d) * d - (q - c)
+    return math.atan2(nm[1], nm[0]), float(nm @ qm)
+
+
+def candidates(obs: PeakObservations, params: WallFitParams) -> list[Candidate]:
+    """Greedy pass: strongest Hough line among the unexplained peaks, one piece at a time."""
+    remaining = np.ones(obs.size, dtype=bool)
+    found: list[Candidate] = []
+    span = params.peaks.max_range_m - params.peaks.min_range_m
+    misses = 0
+    while remaining.sum() >= params.min_blocks and len(found) < params.max_walls and misses < 6:
+        idx = np.nonzero(remaining)[0]
+        sub = obs.subset(remaining)
+        space = vote(sub, params.cos_tol, params.phi_step_rad, params.rho_step_m)
+        acc = smoothed(space, (1.0, 0.75))
+        i_phi, i_rho = np.unravel_index(int(np.argmax(acc)), acc.shape)
+        phi0, rho0 = float(space.phi_rad[i_phi]), float(space.rho_m[i_rho])
+        tol_fit = 2 * params.range_tol_m
+        first = inliers(sub, phi0, rho0, tol_fit, params.cos_tol)
+        if first.sum() < params.min_blocks:
+            break
+        line = fit_line(sub.subset(first), phi0, rho0, params.cos_tol, params.range_sigma_m)
+        inl = inliers(sub, line.phi_rad, line.rho_m, params.range_tol_m, params.cos_tol)
+        remaining[idx[inl | first]] = False
+        if inl.sum() < params.min_blocks:
+            misses += 1
+            continue
+        members = idx[inl]
+        found_any = _add_pieces(obs, members, line, params, span, found)
+        misses = 0 if found_any else misses + 1
+    return found
+
+
+def _add_pieces(obs: PeakObservations, members: NDArray[np.int64], line: LineFit,
+                params: WallFitParams, span: float, found: list[Candidate]) -> bool:
+    sub = obs.subset(_mask(obs.size, members))
+    t = np.array([-math.sin(line.phi_rad), math.cos(line.phi_rad)])
+    q = specular_points(sub, line.phi_rad)
+    s = q @ t
+    added = False
+    for grp in _pieces(s, sub.block + 100_000 * sub.run, params.gap_m, params.min_blocks,
+                       params.min_length_m):
+        piece = sub.subset(_mask(sub.size, grp))
+        res = piece.range_m - (line.rho_m - math.cos(line.phi_rad) * piece.x_m
+                               - math.sin(line.phi_rad) * piece.y_m)
+        gain = _gain(res, params.range_sigma_m, span, obs.size)
+        if gain <= 0:
+            continue
+        base = line.rho_m * np.array([math.cos(line.phi_rad), math.sin(line.phi_rad)])
+        a, b = base + s[grp].min() * t, base + s[grp].max() * t
+        straight, c, d = _straight(piece.x_m, piece.y_m, params.straight_tol_m)
+        members_g = np.sort(members[grp])
+        cand = Candidate(line=line, a_m=a, b_m=b, members=members_g, gain=gain)
+        if straight:
+            phi_m, rho_m = _mirror_line(line.phi_rad, line.rho_m, c, d)
+            am = c + 2 * ((a - c) @ d) * d - (a - c)
+            bm = c + 2 * ((b - c) @ d) * d - (b - c)
+            mline = LineFit(phi_m, rho_m, line.cov, line.sigma_range_m)
+            k = len(found)
+            found.append(Candidate(line, a, b, members_g, gain, True, k + 1))
+            found.append(Candidate(mline, am, bm, members_g, gain, True, k))
+        else:
+            found.append(cand)
+        added = True
+    return added
+
+
+def _mask(n: int, idx: NDArray[np.int64]) -> BoolArray:
+    m = np.zeros(n, dtype=bool)
+    m[idx] = True
+    return m
+
+
+# ---- from candidates to the wall map --------------------------------------------------------
+@dataclass(frozen=True)
+class FittedWalls:
+    """The fitted vector map: one row per wall (see :class:`mapping.wallmap.WallMap`)."""
+
+    walls_m: FloatArray
+    strength: FloatArray
+    sigma: FloatArray
+    ambiguous: BoolArray
+    pair: NDArray[np.int64]
+    n_peaks: NDArray[np.int64]
+    gain: FloatArray
+    explained_share: float
+    n_candidates: int
+
+    @property
+    def n(self) -> int:
+        """Number of walls."""
+        return int(self.strength.size)
+
+
+@dataclass
+class _Wall:
+    cand: Candidate
+    a: FloatArray
+    b: FloatArray
+    group: int
+    strength: float = 1.0
+    joined: list[bool] = field(default_factory=lambda: [False, False])
+
+
+def _groups(cands: list[Candidate]) -> list[list[Candidate]]:
+    out: list[list[Candidate]] = []
+    i = 0
+    while i < len(cands):
+        if cands[i].ambiguous and cands[i].pair == i + 1:
+            out.append([cands[i], cands[i + 1]])
+            i += 2
+        else:
+            out.append([cands[i]])
+            i += 1
+    return out
+
+
+def _wallset(walls: list[_Wall], pad_m: float = 0.03) -> WallSet:
+    """The walls for the forward model, each run on by ``pad_m`` past both ends.
+
+    A fitted corner is never exactly the angle of the true one; the monostatic corner echo
+    of a right angle bounces at the vertex itself, so without the pad a corner off by a
+    fraction of a degree would lose its echo.
+    """
+    if not walls:
+        return WallSet(np.zeros((0, 2, 2)), np.zeros(0))
+    seg = np.array([[w.a, w.b] for w in walls])
+    d = seg[:, 1] - seg[:, 0]
+    d = d / np.linalg.norm(d, axis=1, keepdims=True) * pad_m
+    seg = np.stack([seg[:, 0] - d, seg[:, 1] + d], axis=1)
+    return WallSet(seg, np.array([w.strength for w in walls]))
+
+
+def _share(obs: PeakObservations, mask: BoolArray) -> float:
+    w = obs.value
+    return float(w[mask].sum() / w.sum()) if w.sum() > 0 else 0.0
+
+
+def _strength(obs: PeakObservations, power: float) -> float:
+    return float(np.median(obs.value * (2.0 * obs.range_m) ** power))
+
+
+def fit_walls(obs: PeakObservations, config: SonarConfig,
+              params: WallFitParams = WallFitParams(), spreading: str = "3d") -> FittedWalls:
+    """Vector wall map explaining the echo peaks ``obs`` (see the module docstring)."""
+    power = SPREADING_POWER[spreading]
+    cands = candidates(obs, params)
+    kept: list[_Wall] = []
+    for g, group in enumerate(_groups(cands)):
+        sub = obs.subset(_mask(obs.size, group[0].members))
+        if kept and _is_ghost(sub, group[0], _wallset(_extended(kept)), config, params):
+            continue
+        for c in group:
+            kept.append(_Wall(c, c.a_m.copy(), c.b_m.copy(), g, _strength(sub, power)))
+    kept = _mirror_pass(kept, obs, config, params, power)
+    for _ in range(2):
+        kept = _reextent(kept, obs, params)
+        _join_corners(kept, obs, config, params)
+        _trim_crossings(kept, params.corner_snap_m)
+        kept = _leave_one_out(kept, obs, config, params)
+    return _finish(kept, obs, config, params, len(cands))
+
+
+def _mirror_pass(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
+                 params: WallFitParams, power: float) -> list[_Wall]:
+    """Walls heard only where the path ran straight beside their mirror image.
+
+    From a straight stretch a wall and its mirror across the path give the same echoes, so
+    the greedy pass keeps whichever it met first. The mirror is added when the two together
+    explain peaks neither explains alone (flutter between them, their corners) in
+    ``min_blocks`` blocks; otherwise it stays out (the side was told by the curved part of
+    the path) or, if the wall was heard from a straight path only, both are already a
+    flagged pair.
+    """
+    out = list(kept)
+    group = max((w.group for w in kept), default=-1) + 1
+    for w in kept:
+        if w.cand.ambiguous:
+            continue
+        sub = obs.subset(_mask(obs.size, w.cand.members))
+        mirror = _mirror_candidate(sub, w, params)
+        if mirror is None:
+            continue
+        line, a, b, members = mirror
+        if any(_same_line(line, o.cand.line) for o in out):
+            continue
+        base = _wallset(_extended(out))
+        before = explained(obs, base, config, params.max_order, params.range_tol_m,
+                           params.cos_tol)
+        trial = _Wall(Candidate(line, a, b, np.sort(w.cand.members)[members], 0.0), a, b, group,
+                      w.strength)
+        after = explained(obs, _wallset(_extended([*out, trial])), config, params.max_order,
+                          params.range_tol_m, params.cos_tol)
+        new = after & ~before
+        if np.unique((obs.block + 100_000 * obs.run)[new]).size >= params.min_blocks:
+            out.append(trial)
+            group += 1
+    return out
+
+
+def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
+                      ) -> tuple[LineFit, FloatArray, FloatArray, NDArray[np.int64]] | None:
+    """The wall's line mirrored across each pose's line of travel, where those agree."""
+    phi = w.cand.line.phi_rad
+    travel = sub.travel_rad
+    phi_m = np.remainder(2 * travel - phi + np.pi, 2 * np.pi) - np.pi
+    p = np.stack([sub.x_m, sub.y_m], axis=1)
+    q = specular_points(sub, phi)
+    d = np.stack([np.cos(travel), np.sin(travel)], axis=1)
+    rel = q - p
+    qm = p + 2 * np.sum(rel * d, axis=1)[:, None] * d - rel
+    nm = np.stack([np.cos(phi_m), np.sin(phi_m)], axis=1)
+    rho_m = np.sum(nm * qm, axis=1)
+    diff = np.abs(np.angle(np.exp(1j * (phi_m[:, None] - phi_m[None, :]))))
+    f0 = float(phi_m[int(np.argmax((diff <= math.radians(3.0)).sum(axis=1)))])
+    close = np.abs(np.angle(np.exp(1j * (phi_m - f0)))) <= math.radians(3.0)
+    if close.sum() < params.min_blocks:
+        return None
+    r0 = float(np.median(rho_m[close]))
+    ok = close & (np.abs(rho_m - r0) <= params.range_tol_m)
+    if np.unique(sub.block[ok] + 100_000 * sub.run[ok]).size < params.min_blocks:
+        return None
+    f = float(np.angle(np.mean(np.exp(1j * phi_m[ok]))))
+    t = np.array([-math.sin(f), math.cos(f)])
+    s = qm[ok] @ t
+    if np.ptp(s) < params.min_length_m:
+        return None
+    base = r0 * np.array([math.cos(f), math.sin(f)])
+    line = LineFit(f, r0, w.cand.line.cov, w.cand.line.sigma_range_m)
+    return line, base + s.min() * t, base + s.max() * t, np.nonzero(ok)[0]
+
+
+def _same_line(a: LineFit, b: LineFit, angle_rad: float = math.radians(5.0),
+               offset_m: float = 0.1) -> bool:
+    dphi = abs(math.remainder(a.phi_rad - b.phi_rad, 2 * math.pi))
+    return dphi <= angle_rad and abs(a.rho_m - b.rho_m) <= offset_m
+
+
+def _reextent(kept: list[_Wall], obs: PeakObservations, params: WallFitParams) -> list[_Wall]:
+    """Each wall's extent from the members whose first-order leg no other wall blocks.
+
+    The greedy pass may merge a wall's own echoes with multi-bounce echoes that happen to lie
+    on its line from elsewhere (flutter in a neighbouring arm of the room); those legs pass
+    through a wall found later.
+    """
+    out = []
+    for w in kept:
+        others = _wallset([o for o in kept if o.group != w.group], pad_m=0.0)
+        sub = obs.subset(_mask(obs.size, w.cand.members))
+        free = ~occluded(sub, w.cand.line.phi_rad, others)
+        if np.unique(sub.block[free] + 100_000 * sub.run[free]).size < params.min_blocks:
+            continue
+        t = np.array([-math.sin(w.cand.line.phi_rad), math.cos(w.cand.line.phi_rad)])
+        s = specular_points(sub.subset(free), w.cand.line.phi_rad) @ t
+        base = w.cand.line.rho_m * np.array([math.cos(w.cand.line.phi_rad),
+                                             math.sin(w.cand.line.phi_rad)])
+        old = np.array([w.a @ t, w.b @ t])
+        lo, hi = float(s.min()), float(s.max())
+        a = base + (lo if old[0] <= old[1] else hi) * t
+        b = base + (hi if old[0] <= old[1] else lo) * t
+        if hi - lo < params.min_length_m:
+            continue
+        cand = Candidate(w.cand.line, a, b, np.sort(w.cand.members)[free], w.cand.gain,
+                         w.cand.ambiguous, w.cand.pair)
+        out.append(_Wall(cand, a, b, w.group, w.strength))
+    return out
+
+
+def _trim_crossings(kept: list[_Wall], reach_m: float) -> None:
+    """Two walls that cross near an end of each are cut back to the crossing (outside
+    corners: no echo joins them, but neither wall runs through the other)."""
+    for i in range(len(kept)):
+        for j in range(i + 1, len(kept)):
+            wi, wj = kept[i], kept[j]
+            if wi.group == wj.group:
+                continue
+            x = _intersection(wi, wj)
+            if x is None or not (_inside(wi, x) and _inside(wj, x)):
+                continue
+            ei, di, _ = _end_to(wi, x)
+            ej, dj, _ = _end_to(wj, x)
+            if di <= reach_m and dj <= reach_m:
+                for w, e in ((wi, ei), (wj, ej)):
+                    if e == 0:
+                        w.a = x.copy()
+                    else:
+                        w.b = x.copy()
+                    w.joined[e] = True
+
+
+def _is_ghost(sub: PeakObservations, cand: Candidate, others: WallSet, config: SonarConfig,
+              params: WallFitParams) -> bool:
+    """Whether the other walls explain the candidate's peaks: as their multi-bounce echoes, or
+    because the candidate lies behind them (its first-order legs would pass through a wall)."""
+    ex = explained(sub, others, config, params.max_order, params.range_tol_m, params.cos_tol)
+    ex |= occluded(sub, cand.line.phi_rad, others)
+    return _share(sub, ex) >= params.explained_share
+
+
+def _extended(kept: list[_Wall], reach_m: float = 3.0) -> list[_Wall]:
+    """Copies of the walls with every end run on to the nearest other wall within reach.
+
+    Used only to ask whether a candidate's echoes are multi-bounce echoes of the walls kept
+    so far: the runs hear walls only near their specular points, and corner and flutter
+    paths need the walls to reach their corners.
+    """
+    out = []
+    for w in kept:
+        a, b = w.a.copy(), w.b.copy()
+        best = [reach_m, reach_m]
+        for o in kept:
+            if o.group == w.group:
+                continue
+            x = _intersection(w, o)
+            if x is None:
+                continue
+            end, dist, beyond = _end_to(w, x)
+            _, dist_o, _ = _end_to(o, x)
+            if beyond and dist < best[end] and (dist_o <= reach_m or _inside(o, x)):
+                best[end] = dist
+                if end == 0:
+                    a = x
+                else:
+                    b = x
+        out.append(_Wall(w.cand, a, b, w.group, w.strength))
+    return out
+
+
+def _inside(w: _Wall, x: FloatArray) -> bool:
+    d = w.b - w.a
+    t = float((x - w.a) @ d / (d @ d))
+    return 0.0 <= t <= 1.0
+
+
+def _leave_one_out(kept: list[_Wall], obs: PeakObservations,
+                   config: SonarConfig, params: WallFitParams) -> list[_Wall]:
+    """Drop walls that explain nothing the others do not: a wall stays only if removing it
+    leaves peaks of ``min_blocks`` blocks unexplained (weakest evidence tried first)."""
+    changed = True
+    while changed and kept:
+        changed = False
+        full = explained(obs, _wallset(_extended(kept)), config, params.max_order,
+                         params.range_tol_m, params.cos_tol)
+        for w in sorted(kept, key=lambda w: w.cand.gain):
+            others = [o for o in kept if o.group != w.group]
+            rest = explained(obs, _wallset(_extended(others)), config, params.max_order,
+                             params.range_tol_m, params.cos_tol)
+            only = full & ~rest
+            if np.unique((obs.block + 100_000 * obs.run)[only]).size < params.min_blocks:
+                kept = others
+                changed = True
+                break
+    return kept
+
+
+def _intersection(w1: _Wall, w2: _Wall) -> FloatArray | None:
+    d1, d2 = w1.b - w1.a, w2.b - w2.a
+    den = d1[0] * d2[1] - d1[1] * d2[0]
+    if abs(den) < math.sin(math.radians(20.0)) * np.hypot(*d1) * np.hypot(*d2):
+        return None
+    w = w2.a - w1.a
+    t = (w[0] * d2[1] - w[1] * d2[0]) / den
+    return np.asarray(w1.a + t * d1)
+
+
+def _end_to(w: _Wall, x: FloatArray) -> tuple[int, float, bool]:
+    """Nearer end (0 = a, 1 = b), its distance to x, and whether x lies beyond that end."""
+    d = w.b - w.a
+    t = float((x - w.a) @ d / (d @ d))
+    end = 0 if t < 0.5 else 1
+    beyond = t < 0 if end == 0 else t > 1
+    return end, float(np.hypot(*(x - (w.a if end == 0 else w.b)))), beyond
+
+
+def _join_corners(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
+                  params: WallFitParams, reach_m: float = 3.0) -> None:
+    """Extend two walls to their intersection where a corner echo says they meet there."""
+    pairs = []
+    for i in range(len(kept)):
+        for j in range(i + 1, len(kept)):
+            if kept[i].group == kept[j].group:
+                continue
+            x = _intersection(kept[i], kept[j])
+            if x is None:
+                continue
+            ei, di, bi = _end_to(kept[i], x)
+            ej, dj, bj = _end_to(kept[j], x)
+            if kept[i].joined[ei] or kept[j].joined[ej]:
+                continue
+            near = (di <= params.corner_snap_m or bi) and (dj <= params.corner_snap_m or bj)
+            if near and max(di, dj) <= reach_m:
+                pairs.append((max(di, dj), i, j, ei, ej, x))
+    for _, i, j, ei, ej, x in sorted(pairs, key=lambda p: p[0]):
+        wi, wj = kept[i], kept[j]
+        if wi.joined[ei] or wj.joined[ej]:
+            continue
+        trial = [_Wall(wi.cand, *((x, wi.b) if ei == 0 else (wi.a, x)), wi.group),
+                 _Wall(wj.cand, *((x, wj.b) if ej == 0 else (wj.a, x)), wj.group)]
+        ws = WallSet(np.array([[t.a, t.b] for t in trial]), np.ones(2))
+        ex = explained(obs, ws, config, 2, params.range_tol_m, params.cos_tol, min_order=2)
+        heard = np.unique((obs.block + 100_000 * obs.run)[ex]).size
+        if heard < params.min_blocks:
+            continue
+        for w, e in ((wi, ei), (wj, ej)):
+            if e == 0:
+                w.a = x.copy()
+            else:
+                w.b = x.copy()
+            w.joined[e] = True
+
+
+def _finish(kept: list[_Wall], obs: PeakObservations,
+            config: SonarConfig, params: WallFitParams, n_candidates: int) -> FittedWalls:
+    n = len(kept)
+    walls = np.array([[*w.a, *w.b] for w in kept]).reshape(n, 4)
+    pair = np.full(n, -1, dtype=np.int64)
+    for i, w in enumerate(kept):
+        for j, o in enumerate(kept):
+            if i != j and o.group == w.group:
+                pair[i] = j
+    sigma = np.zeros((n, 3))
+    for i, w in enumerate(kept):
+        cov = w.cand.line.cov
+        sub = obs.subset(_mask(obs.size, w.cand.members))
+        t = np.array([-math.sin(w.cand.line.phi_rad), math.cos(w.cand.line.phi_rad)])
+        s = np.sort(specular_points(sub, w.cand.line.phi_rad) @ t)
+        gap = float(np.median(np.diff(s))) if s.size > 2 else params.gap_m
+        sigma[i] = (math.sqrt(max(cov[1, 1], 0.0)), math.sqrt(max(cov[0, 0], 0.0)),
+                    0.0 if all(w.joined) else 0.5 * gap)
+    final = _wallset(kept)
+    ex = explained(obs, final, config, params.max_order, params.range_tol_m, params.cos_tol)
+    return FittedWalls(
+        walls_m=walls, strength=np.array([w.strength for w in kept]), sigma=sigma,
+        ambiguous=np.array([w.cand.ambiguous for w in kept], dtype=bool), pair=pair,
+        n_peaks=np.array([w.cand.members.size for w in kept], dtype=np.int64),
+        gain=np.array([w.cand.gain for w in kept]), explained_share=_share(obs, ex),
+        n_candidates=n_candidates)

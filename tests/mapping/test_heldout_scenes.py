@@ -1,0 +1,146 @@
+"""Held-out scenes and paths (``scenes/``, issue 13): they parse, every path keeps its clearance,
+curved paths really turn, and the wall-map benchmark's scoring gives 1/1 on a perfect map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks._heldout import (
+    heldout_path,
+    heldout_path_names,
+    heldout_scene,
+    heldout_scene_names,
+)
+from benchmarks.wall_maps import score_map
+from mapping.path import min_wall_distance_m
+from mapping.quality import distance_to_walls
+from mapping.wallmap import WallMap
+
+CLEARANCE_M = 0.35
+SCENES = heldout_scene_names()
+PATHS = heldout_path_names()
+
+
+#: The free space of each scene, written out again by hand (open ends closed across the opening).
+INTERIOR = {
+    "trapezoid": [(0.0, 0.0), (5.5, 0.0), (4.7, 4.0), (0.7, 4.0)],
+    "t-hall": [(0.0, 4.0), (4.9, 4.0), (4.9, 0.0), (7.1, 0.0), (7.1, 4.0), (12.0, 4.0),
+               (12.0, 6.2), (0.0, 6.2)],
+    "office": [(0.0, 0.0), (6.0, 0.0), (6.0, 5.0), (0.0, 5.0)],
+    "long-corridor": [(0.0, 0.0), (14.0, 0.0), (14.0, 1.8), (0.0, 1.8)],
+}
+
+
+def _inside(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd rule: points (n, 2) strictly inside ``polygon`` (k, 2)."""
+    x, y = xy[:, 0, None], xy[:, 1, None]
+    x0, y0 = polygon[:, 0], polygon[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    straddles = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.asarray(np.sum(straddles & (x < x_cross), axis=1) % 2 == 1)
+
+
+def test_inside_rule() -> None:
+    square = np.array([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)])
+    assert _inside(np.array([[0.5, 0.5], [1.5, 0.5], [0.5, -0.1]]), square).tolist() == [
+        True, False, False]
+
+
+def _sweep_deg(name: str) -> float:
+    """Range of the unwrapped heading along the path, degrees."""
+    trajectory = heldout_path(name).trajectory()
+    t = np.linspace(0.0, trajectory.duration_s, 2000)
+    heading = np.unwrap(trajectory.heading_rad(t))
+    return float(np.degrees(heading.max() - heading.min()))
+
+
+def test_the_four_scenes_of_issue_13_are_there() -> None:
+    assert {"trapezoid", "t-hall", "office", "long-corridor"} <= set(SCENES)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_scene_parses_and_has_a_straight_and_a_curved_path(name: str) -> None:
+    scene = heldout_scene(name)
+    assert scene.name == name and scene.description
+    kinds = {heldout_path(p).kind for p in heldout_path_names(name)}
+    assert "line" in kinds and kinds & {"curve", "loop"}
+    assert heldout_path(f"{name}-curve").kind in ("curve", "loop")  # the benchmark's run
+
+
+def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
+    scene = heldout_scene("trapezoid")
+    d = np.diff(scene.segments(), axis=1)[:, 0]
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    cosines = np.abs(np.sum(u * np.roll(u, -1, axis=0), axis=1))
+    assert np.all(cosines > 0.1)  # every corner at least ~6 deg from square
+    assert sorted(scene.reflection_coefficients().tolist()) == [0.8, 1.0, 1.0, 1.0]
+
+
+@pytest.mark.parametrize("name", PATHS)
+def test_path_stays_inside_with_clearance(name: str) -> None:
+    spec = heldout_path(name)
+    scene = heldout_scene(spec.scene)
+    trajectory = spec.trajectory()
+    assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= CLEARANCE_M
+    xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
+    assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
+
+
+@pytest.mark.parametrize("name", PATHS)
+def test_curved_paths_sweep_their_heading_and_lines_do_not(name: str) -> None:
+    spec = heldout_path(name)
+    sweep = _sweep_deg(name)
+    if spec.kind == "line":
+        assert len(spec.points_m) > 2 or sweep < 1e-6
+    elif spec.scene == "long-corridor":  # 1.8 m wide: a weave, not a turn
+        assert sweep > 60
+    elif name.endswith("-curve"):
+        assert sweep > 90
+    else:
+        assert sweep > 45
+
+
+def test_unknown_names_are_refused() -> None:
+    with pytest.raises(ValueError, match="scene name"):
+        heldout_scene("nowhere")
+    with pytest.raises(ValueError, match="path name"):
+        heldout_path("nowhere")
+
+
+def test_scoring_gives_one_on_a_perfect_map() -> None:
+    scene = heldout_scene("trapezoid")
+    segments = scene.segments()
+    resolution = 0.05
+    x = np.arange(-0.5, 6.0, resolution)
+    y = np.arange(-0.5, 4.5, resolution)
+    centres = np.stack(np.meshgrid(x, y), axis=-1)
+    G = (distance_to_walls(centres, segments) <= 0.75 * resolution).astype(np.float64)
+    wm = WallMap(G=G, origin_m=(float(x[0]), float(y[0])), resolution_m=resolution,
+                 walls_m=segments.reshape(-1, 4))
+    poses = np.array([[2.7, 2.0, 0.0], [1.5, 1.0, 0.0]])
+    scores = score_map(wm, segments, poses)
+    raster = scores["raster"]
+    assert raster["observed_wall_share"] == 1.0
+    assert raster["precision"] == 1.0 and raster["recall"] == 1.0 and raster["f1"] == 1.0
+    walls = scores["walls"]
+    assert walls["precision"] == 1.0 and walls["recall"] == 1.0 and walls["f1"] == 1.0
+    assert walls["angle_error_deg_max"] < 1e-9 and walls["endpoint_error_m_max"] < 1e-9
+    # a ghost: the south wall moved 0.5 m north is one false wall and one missed wall
+    ghost = segments.reshape(-1, 4).copy()
+    ghost[0] += [0.0, 0.5, 0.0, 0.5]
+    wm_ghost = WallMap(G=G, origin_m=wm.origin_m, resolution_m=resolution, walls_m=ghost)
+    walls = score_map(wm_ghost, segments, poses)["walls"]
+    assert walls["precision"] == 0.75 and walls["recall"] == 0.75
+
+
+def test_grid_maps_get_no_wall_scores() -> None:
+    segments = heldout_scene("long-corridor").segments()
+    wm = WallMap(G=np.zeros((60, 300)), origin_m=(-0.5, -0.5), resolution_m=0.05)
+    scores = score_map(wm, segments, np.array([[1.0, 0.9, 0.0]]))
+    assert "walls" not in scores
+    assert scores["raster"]["strong_cells"] == 0 and scores["raster"]["f1"] == 0.0
+    # seen from x = 1 within 6 m: the closed end and 7 m of each long wall, not the open end
+    assert 0.4 < scores["raster"]["observed_wall_share"] < 0.6

@@ -1,0 +1,142 @@
+"""Wall fitting (mapping.walls, build method "walls") against ground-truth geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapping.build import BuildParams, RunSource, build_map
+from mapping.heatmap import doppler_heatmap, heatmap_of_run
+from mapping.path import builtin_path, polyline_path, stationary_path
+from mapping.quality import distance_to_walls, evaluate_walls
+from mapping.scene import Scene, Wall, builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate import simulate_run
+from mapping.simulate.ism import IsmConfig
+from mapping.synthetic import Wall as SyntheticWall
+from mapping.synthetic import synthetic_run
+from mapping.walls import PeakParams, WallFitParams, fit_walls, heatmap_peaks, run_peaks
+
+CONFIG = SonarConfig()
+ISM = IsmConfig(snr_db=10.0, odometry_noise_m_s=0.005, max_path_m=12.0)
+
+
+def _simulate(scene: Scene, path, n_blocks: int, seed: int = 0):
+    return simulate_run(scene, path, CONFIG, n_blocks, ISM, np.random.default_rng(seed), seed)
+
+
+def _walls_map(run):
+    return build_map([RunSource.from_run(run)], BuildParams(method="walls"))
+
+
+@pytest.fixture(scope="module")
+def shoebox_map():
+    scene = builtin_scene("shoebox")
+    return scene, _walls_map(_simulate(scene, builtin_path("shoebox-curve", 0.1), 58))
+
+
+@pytest.fixture(scope="module")
+def paper_map():
+    scene = builtin_scene("paper")
+    return scene, _walls_map(_simulate(scene, builtin_path("paper-b", 0.1), 59))
+
+
+def test_peak_of_a_single_wall_is_at_its_range_and_angle() -> None:
+    # a wall 1.5 m away whose normal is 50 deg from the direction of travel
+    run = synthetic_run(CONFIG, SyntheticWall(1.5, math.radians(50.0)), 0.1, n_blocks=3)
+    hm = heatmap_of_run(run, 1)
+    pk = heatmap_peaks(hm, PeakParams(min_range_m=0.1))
+    assert pk.range_m.size >= 1
+    assert abs(pk.range_m[0] - 1.5) < 0.01
+    assert abs(math.degrees(pk.angle_rad[0]) - 50.0) < 4.0
+
+
+def test_no_peaks_in_noise_alone() -> None:
+    rng = np.random.default_rng(0)
+    hm = doppler_heatmap(rng.normal(size=CONFIG.block_samples), 0.1, CONFIG)
+    assert heatmap_peaks(hm).range_m.size == 0
+
+
+def test_params_are_validated_naming_the_field() -> None:
+    with pytest.raises(ValueError, match="cos_tol"):
+        WallFitParams(cos_tol=0.0)
+    with pytest.raises(ValueError, match="max_range_m"):
+        PeakParams(min_range_m=2.0, max_range_m=1.0)
+
+
+def test_shoebox_walls_from_a_curved_run(shoebox_map) -> None:
+    scene, wm = shoebox_map
+    q = evaluate_walls(wm.walls_m, scene.segments(), pair=wm.wall_pair)
+    assert q.precision == 1.0 and q.recall == 1.0
+    assert wm.n_walls == 4
+    assert max(m.angle_error_deg for m in q.matches) <= 2.0
+    # the loop saw every corner (corner echoes): the ends are joined there
+    ends = wm.walls_m.reshape(-1, 2, 2).reshape(-1, 2)
+    corners = scene.segments()[:, 0]
+    d = np.min(np.hypot(*(ends[:, None] - corners[None]).transpose(2, 0, 1)), axis=1)
+    assert d.max() <= 0.10
+    assert not wm.wall_ambiguous.any()
+    assert wm.provenance["fit"]["explained_share"] > 0.8
+
+
+def test_no_ghost_walls_outside_the_shoebox(shoebox_map) -> None:
+    # parallel-wall flutter and corner echoes back-project outside the room; none is a wall
+    scene, wm = shoebox_map
+    mid = 0.5 * (wm.walls_m[:, :2] + wm.walls_m[:, 2:])
+    assert np.all(distance_to_walls(mid, scene.segments()) <= 0.05)
+
+
+def test_map_g_and_coverage_come_from_the_walls(shoebox_map) -> None:
+    _, wm = shoebox_map
+    assert wm.method == "walls"
+    assert wm.G.max() > 0 and wm.coverage.any() and not wm.coverage.all()
+    assert np.isfinite(wm.wall_sigma).all() and (wm.wall_sigma[:, 1] < math.radians(2)).all()
+
+
+def test_paper_scene_walls_and_free_end(paper_map) -> None:
+    scene, wm = paper_map
+    q = evaluate_walls(wm.walls_m, scene.segments(), pair=wm.wall_pair)
+    assert q.precision == 1.0 and q.recall == 1.0
+    # Wall 3 ends in the open at x = 2.3 m; the path saw that end
+    wall3 = [w for w in wm.walls_m if abs(w[1] - 1.36) < 0.05 and abs(w[3] - 1.36) < 0.05]
+    assert len(wall3) == 1
+    assert abs(min(wall3[0][0], wall3[0][2]) - 2.3) <= 0.10
+
+
+def test_straight_path_keeps_both_sides_flagged() -> None:
+    # one wall beside a straight path: its mirror about the path explains the echoes as well
+    scene = Scene(name="one wall", walls=[Wall(start=(-1.0, 2.0), end=(6.0, 2.0))])
+    run = _simulate(scene, polyline_path([(0.5, 1.0), (4.5, 1.0)], speed_m_s=0.1), 38)
+    wm = _walls_map(run)
+    assert wm.n_walls == 2
+    assert wm.wall_ambiguous.all()
+    assert wm.wall_pair.tolist() == [1, 0]
+    ys = sorted(0.5 * (wm.walls_m[:, 1] + wm.walls_m[:, 3]))
+    assert abs(ys[0] - 0.0) < 0.03 and abs(ys[1] - 2.0) < 0.03
+
+
+def test_corridor_flutter_is_not_a_wall() -> None:
+    scene = builtin_scene("corridor")
+    run = _simulate(scene, builtin_path("corridor-curve", 0.1), 40, seed=2)
+    wm = _walls_map(run)
+    mid = 0.5 * (wm.walls_m[:, :2] + wm.walls_m[:, 2:])
+    # flutter between the long walls would put walls at y = -2, 4, ...; none may appear
+    assert np.all((mid[:, 1] > -0.1) & (mid[:, 1] < 2.1))
+    long_walls = [w for w in wm.walls_m if abs(w[1] - w[3]) < 0.05 and abs(w[0] - w[2]) > 2]
+    assert sorted(round(0.5 * (w[1] + w[3]), 1) for w in long_walls) == [0.0, 2.0]
+
+
+def test_stationary_robot_cannot_map_walls() -> None:
+    scene = builtin_scene("shoebox")
+    run = _simulate(scene, stationary_path((2.0, 1.5), 0.0, 4.0), 3)
+    with pytest.raises(ValueError, match="observable"):
+        _walls_map(run)
+
+
+def test_fit_on_no_peaks_gives_no_walls() -> None:
+    run = _simulate(Scene(name="far", walls=[Wall(start=(0, 30.0), end=(1, 30.0))]),
+                    polyline_path([(0.0, 0.0), (1.0, 0.0)], speed_m_s=0.1), 6)
+    fitted = fit_walls(run_peaks(run), CONFIG)
+    assert fitted.n == 0
