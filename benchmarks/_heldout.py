@@ -4,12 +4,15 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
 :mod:`mapping.scene`); their paths are in ``scenes/paths.json``::
 
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
-                     "points": [[x, y], ...], "description": "..."}, ...}
+                     "points": [[x, y], ...], "description": "...",
+                     "group": "held-out" | "fresh"}, ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
 rounded corners), ``curve`` is :func:`mapping.path.curve_path` through them and ``loop`` the
 closed curve. Every scene has one path named ``<scene>-curve``: the curved run the wall-map
-benchmark maps. This loader lives here, not in ``mapping``, so the package never reads files
+benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the benchmark:
+``"fresh"`` marks scenes written after the wall fit was developed, so nobody looked at them
+while tuning it. This loader lives here, not in ``mapping``, so the package never reads files
 by path.
 """
 
@@ -29,17 +32,19 @@ from mapping.scene import Scene
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
+PATH_GROUPS = ("held-out", "fresh")
 
 
 @dataclass(frozen=True)
 class PathSpec:
-    """One hand-designed path: name, scene name, kind, points (m) and description."""
+    """One hand-designed path: name, scene name, kind, points (m), description and group."""
 
     name: str
     scene: str
     kind: str
     points_m: NDArray[np.float64]
     description: str
+    group: str = "held-out"
 
     def trajectory(self, speed_m_s: float = PAPER_SPEED_M_S) -> Trajectory:
         """The constant-speed trajectory of this path."""
@@ -86,5 +91,9 @@ def heldout_path(name: str) -> PathSpec:
     points = np.asarray(entry.get("points"), dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 2:
         raise ValueError(f"path {name!r}: field 'points' must be (n >= 2, 2), got {points.shape}")
+    group = entry.get("group", "held-out")
+    if group not in PATH_GROUPS:
+        raise ValueError(f"path {name!r}: field 'group' must be one of {PATH_GROUPS}, "
+                         f"got {group!r}")
     return PathSpec(name=name, scene=str(entry.get("scene")), kind=kind, points_m=points,
-                    description=str(entry.get("description", "")))
+                    description=str(entry.get("description", "")), group=group)

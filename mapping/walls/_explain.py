@@ -141,3 +141,41 @@ def occluded(obs: PeakObservations, normal_rad: float, walls: WallSet) -> BoolAr
             u = _cross(qa, r) / den
         out |= (np.abs(den) > 1e-15) & (s > 1e-9) & (s < 1 - 0.02) & (u >= 0) & (u <= 1)
     return out
+
+
+def heard_blocks(obs: PeakObservations, walls: WallSet, index: int, config: SonarConfig,
+                 range_tol_m: float, cos_tol: float, snr: float, min_relative: float,
+                 max_range_m: float) -> tuple[int, int]:
+    """(blocks where wall ``index`` must give a first-order echo, blocks that have it).
+
+    "Must" means: the forward model (all ``walls``, occlusion included) predicts it within
+    ``max_range_m`` with an amplitude 1.5 times above the level a peak must reach in that
+    block (``snr`` times its noise, ``min_relative`` times its strongest peak).
+    """
+    if obs.size == 0:
+        return 0, 0
+    key = obs.run * 1_000_000 + obs.block
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(obs.size)[::-1]
+    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    batch = echoes_batch(walls, poses, 0.0, config,
+                         ForwardParams(max_order=1, max_range_m=max_range_m))
+    own = (batch.walls[..., 0] == index) & (batch.order == 1)
+    top = np.zeros(uniq.size)
+    np.maximum.at(top, inv, obs.value)
+    level = np.maximum(snr * obs.noise[first], min_relative * top)
+    loud = np.abs(batch.amplitude) >= 1.5 * level[:, None]
+    must = own & loud
+    rows = np.nonzero(must.any(axis=1))[0]
+    if rows.size == 0:
+        return 0, 0
+    r = np.where(must, batch.range_m, np.nan)[rows]
+    c = np.where(must, batch.cos_doppler, np.nan)[rows]
+    heard = 0
+    for row, pr, pc in zip(rows, r, c, strict=True):
+        m = inv == row
+        dr = np.abs(obs.range_m[m][:, None] - pr[None, :])
+        dc = np.abs(np.cos(obs.angle_rad[m])[:, None] - pc[None, :])
+        heard += int(np.any((dr <= range_tol_m) & (dc <= cos_tol)))
+    return int(rows.size), heard

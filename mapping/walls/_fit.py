@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from mapping.forward import SPREADING_POWER, WallSet
 from mapping.signal import SonarConfig
-from mapping.walls._explain import explained, occluded
+from mapping.walls._explain import explained, heard_blocks, occluded
 from mapping.walls._lines import (
     LineFit,
     fit_line,
@@ -73,6 +73,14 @@ class WallFitParams:
         Highest order of the forward model used to explain ghosts.
     corner_snap_m : float
         Ends of two walls are joined at their intersection when it lies within this distance.
+    clearance_m : float
+        A wall closer than this to the robot's path (or crossing it) is impossible: the robot
+        drove there.
+    heard_share : float
+        A wall whose first-order echo is heard in fewer than this share of the blocks where
+        the forward model predicts it above the detection level is dropped.
+    corner_reach_m : float
+        Farthest a wall end is run on to meet another wall at a corner whose echo is heard.
     straight_tol_m : float
         If every pose that heard a wall lies within this of one straight line, the wall's side
         cannot be told: the mirror line is kept too and both are flagged ambiguous.
@@ -92,6 +100,9 @@ class WallFitParams:
     max_order: int = 4
     corner_snap_m: float = 0.5
     straight_tol_m: float = 0.03
+    clearance_m: float = 0.15
+    heard_share: float = 0.5
+    corner_reach_m: float = 6.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -108,6 +119,9 @@ class WallFitParams:
             ("max_order", 1 <= self.max_order <= 4),
             ("corner_snap_m", 0 <= self.corner_snap_m <= 5),
             ("straight_tol_m", 0 <= self.straight_tol_m <= 1),
+            ("clearance_m", 0 <= self.clearance_m <= 2),
+            ("heard_share", 0 <= self.heard_share <= 1),
+            ("corner_reach_m", 0 <= self.corner_reach_m <= 20),
         )
         for name, ok in checks:
             if not ok:
@@ -266,6 +280,11 @@ class _Wall:
     group: int
     strength: float = 1.0
     joined: list[bool] = field(default_factory=lambda: [False, False])
+    seen: list[FloatArray] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.seen:
+            self.seen = [self.a.copy(), self.b.copy()]
 
 
 def _groups(cands: list[Candidate]) -> list[list[Candidate]]:
@@ -311,20 +330,63 @@ def fit_walls(obs: PeakObservations, config: SonarConfig,
     """Vector wall map explaining the echo peaks ``obs`` (see the module docstring)."""
     power = SPREADING_POWER[spreading]
     cands = candidates(obs, params)
+    track = _track(obs)
     kept: list[_Wall] = []
     for g, group in enumerate(_groups(cands)):
         sub = obs.subset(_mask(obs.size, group[0].members))
+        if _on_path(group[0].a_m, group[0].b_m, track, params.clearance_m):
+            continue
+        if any(_duplicate(group[0], w) for w in kept):
+            continue
         if kept and _is_ghost(sub, group[0], _wallset(_extended(kept)), config, params):
             continue
         for c in group:
             kept.append(_Wall(c, c.a_m.copy(), c.b_m.copy(), g, _strength(sub, power)))
     kept = _mirror_pass(kept, obs, config, params, power)
     for _ in range(2):
-        kept = _reextent(kept, obs, params)
+        kept = [w for w in _reextent(kept, obs, params)
+                if not _on_path(w.a, w.b, track, params.clearance_m)]
+        kept = _drop_unheard(kept, obs, config, params)
         _join_corners(kept, obs, config, params)
+        _check_joins(kept, obs, config, params)
         _trim_crossings(kept, params.corner_snap_m)
         kept = _leave_one_out(kept, obs, config, params)
     return _finish(kept, obs, config, params, len(cands))
+
+
+def _track(obs: PeakObservations) -> list[FloatArray]:
+    """The robot's path per run: the poses of the blocks with peaks, in block order."""
+    out = []
+    for r in np.unique(obs.run):
+        m = obs.run == r
+        _, first = np.unique(obs.block[m], return_index=True)
+        out.append(np.stack([obs.x_m[m][first], obs.y_m[m][first]], axis=1))
+    return out
+
+
+def _on_path(a: FloatArray, b: FloatArray, track: list[FloatArray], clearance_m: float) -> bool:
+    """Whether the segment a-b comes within ``clearance_m`` of the robot's path: the robot
+    drove there, so no wall can be there (free space the runs prove)."""
+    for pts in track:
+        if pts.shape[0] == 0:
+            continue
+        # distance from every path sample to the segment, and crossings between samples
+        ab = b - a
+        t = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+        if np.min(np.hypot(*(pts - (a + t[:, None] * ab)).T)) < clearance_m:
+            return True
+        p, q = pts[:-1], pts[1:]
+        d1 = _side(a, b, p) * _side(a, b, q)
+        d2 = _side(p, q, a) * _side(p, q, b)
+        if np.any((d1 < 0) & (d2 < 0)):
+            return True
+    return False
+
+
+def _side(a: FloatArray, b: FloatArray, p: FloatArray) -> FloatArray:
+    d = np.asarray(b - a)
+    r = np.asarray(p - a)
+    return np.asarray(d[..., 0] * r[..., 1] - d[..., 1] * r[..., 0])
 
 
 def _mirror_pass(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
@@ -348,7 +410,7 @@ def _mirror_pass(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
         if mirror is None:
             continue
         line, a, b, members = mirror
-        if any(_same_line(line, o.cand.line) for o in out):
+        if any(_collinear_overlap(a, b, o.a, o.b) for o in out):
             continue
         base = _wallset(_extended(out))
         before = explained(obs, base, config, params.max_order, params.range_tol_m,
@@ -375,18 +437,22 @@ def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
     d = np.stack([np.cos(travel), np.sin(travel)], axis=1)
     rel = q - p
     qm = p + 2 * np.sum(rel * d, axis=1)[:, None] * d - rel
-    nm = np.stack([np.cos(phi_m), np.sin(phi_m)], axis=1)
-    rho_m = np.sum(nm * qm, axis=1)
     diff = np.abs(np.angle(np.exp(1j * (phi_m[:, None] - phi_m[None, :]))))
-    f0 = float(phi_m[int(np.argmax((diff <= math.radians(3.0)).sum(axis=1)))])
-    close = np.abs(np.angle(np.exp(1j * (phi_m - f0)))) <= math.radians(3.0)
-    if close.sum() < params.min_blocks:
-        return None
-    r0 = float(np.median(rho_m[close]))
-    ok = close & (np.abs(rho_m - r0) <= params.range_tol_m)
+    tol = math.radians(10.0)
+    f0 = float(phi_m[int(np.argmax((diff <= tol).sum(axis=1)))])
+    ok = np.abs(np.angle(np.exp(1j * (phi_m - f0)))) <= tol
+    for _ in range(3):  # total least squares on the mirrored points, then trim
+        if ok.sum() < params.min_blocks:
+            return None
+        c = qm[ok].mean(axis=0)
+        _, _, vt = np.linalg.svd(qm[ok] - c, full_matrices=False)
+        n = np.array([-vt[0, 1], vt[0, 0]])
+        if n @ (c - p[ok].mean(axis=0)) < 0:
+            n = -n
+        ok = ok & (np.abs((qm - c) @ n) <= params.range_tol_m)
     if np.unique(sub.block[ok] + 100_000 * sub.run[ok]).size < params.min_blocks:
         return None
-    f = float(np.angle(np.mean(np.exp(1j * phi_m[ok]))))
+    f, r0 = math.atan2(n[1], n[0]), float(n @ c)
     t = np.array([-math.sin(f), math.cos(f)])
     s = qm[ok] @ t
     if np.ptp(s) < params.min_length_m:
@@ -396,10 +462,28 @@ def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
     return line, base + s.min() * t, base + s.max() * t, np.nonzero(ok)[0]
 
 
-def _same_line(a: LineFit, b: LineFit, angle_rad: float = math.radians(5.0),
-               offset_m: float = 0.1) -> bool:
-    dphi = abs(math.remainder(a.phi_rad - b.phi_rad, 2 * math.pi))
-    return dphi <= angle_rad and abs(a.rho_m - b.rho_m) <= offset_m
+def _duplicate(c: Candidate, w: _Wall) -> bool:
+    """A candidate on (nearly) the line of a kept wall, overlapping it: the same wall again."""
+    return _collinear_overlap(c.a_m, c.b_m, w.a, w.b)
+
+
+def _collinear_overlap(a1: FloatArray, b1: FloatArray, a2: FloatArray, b2: FloatArray,
+                       angle_rad: float = math.radians(5.0), offset_m: float = 0.15) -> bool:
+    """Two segments within ``angle_rad`` of each other, each end of one within ``offset_m``
+    of the other's line, overlapping along it (or within 0.1 m of overlapping)."""
+    d1, d2 = b1 - a1, b2 - a2
+    l1, l2 = float(np.hypot(*d1)), float(np.hypot(*d2))
+    if l1 < 1e-9 or l2 < 1e-9:
+        return False
+    t1, t2 = d1 / l1, d2 / l2
+    if abs(t1[0] * t2[1] - t1[1] * t2[0]) > math.sin(angle_rad):
+        return False
+    n2 = np.array([-t2[1], t2[0]])
+    if max(abs(float((a1 - a2) @ n2)), abs(float((b1 - a2) @ n2))) > offset_m:
+        return False
+    lo, hi = sorted((0.0, l2))
+    clo, chi = sorted((float((a1 - a2) @ t2), float((b1 - a2) @ t2)))
+    return min(hi, chi) - max(lo, clo) > -0.1
 
 
 def _reextent(kept: list[_Wall], obs: PeakObservations, params: WallFitParams) -> list[_Wall]:
@@ -411,7 +495,8 @@ def _reextent(kept: list[_Wall], obs: PeakObservations, params: WallFitParams) -
     """
     out = []
     for w in kept:
-        others = _wallset([o for o in kept if o.group != w.group], pad_m=0.0)
+        others = _wallset([o for o in kept if o.group != w.group
+                           and not _collinear_overlap(o.a, o.b, w.a, w.b)], pad_m=0.0)
         sub = obs.subset(_mask(obs.size, w.cand.members))
         free = ~occluded(sub, w.cand.line.phi_rad, others)
         if np.unique(sub.block[free] + 100_000 * sub.run[free]).size < params.min_blocks:
@@ -519,6 +604,59 @@ def _leave_one_out(kept: list[_Wall], obs: PeakObservations,
     return kept
 
 
+def _drop_unheard(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
+                  params: WallFitParams) -> list[_Wall]:
+    """Drop walls whose own echo is missing where the forward model says it must be heard:
+    from at least ``min_blocks`` poses it predicts a first-order echo above the block's
+    detection level, and fewer than ``heard_share`` of those blocks have it. (A wall in free
+    space, or the wrong side of a straight stretch seen again from a curve.)"""
+    ws = _wallset(kept, pad_m=0.0)
+    out = []
+    for i, w in enumerate(kept):
+        predicted, heard = heard_blocks(obs, ws, i, config, params.range_tol_m,
+                                        2 * params.cos_tol, params.peaks.snr,
+                                        params.peaks.min_relative, params.peaks.max_range_m)
+        if predicted >= params.min_blocks and heard < params.heard_share * predicted:
+            continue
+        out.append(w)
+    if len(out) < len(kept):  # keep or drop mirror pairs together
+        groups = {w.group for w in out}
+        counts = {g: sum(1 for w in kept if w.group == g) for g in groups}
+        out = [w for w in out if sum(1 for o in out if o.group == w.group) == counts[w.group]
+               or not w.cand.ambiguous]
+    return out
+
+
+def _check_joins(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
+                 params: WallFitParams) -> None:
+    """Undo a corner join whose added piece of wall would have been heard and was not.
+
+    A corner echo says two walls meet, but not that the wall is solid all the way to the
+    corner: an opening (a side corridor) between the heard part and the corner would
+    give no echo where the forward model, with the piece in place, predicts one.
+    """
+    for w in kept:
+        for end in (0, 1):
+            if not w.joined[end]:
+                continue
+            old = w.seen[end]
+            new = w.a if end == 0 else w.b
+            if np.hypot(*(new - old)) < params.gap_m:
+                continue
+            piece = _Wall(w.cand, old.copy(), new.copy(), -1, w.strength)
+            ws = _wallset([*kept, piece], pad_m=0.0)
+            predicted, heard = heard_blocks(obs, ws, len(kept), config, params.range_tol_m,
+                                            2 * params.cos_tol, params.peaks.snr,
+                                            params.peaks.min_relative,
+                                            params.peaks.max_range_m)
+            if predicted >= params.min_blocks and heard < params.heard_share * predicted:
+                if end == 0:
+                    w.a = old.copy()
+                else:
+                    w.b = old.copy()
+                w.joined[end] = False
+
+
 def _intersection(w1: _Wall, w2: _Wall) -> FloatArray | None:
     d1, d2 = w1.b - w1.a, w2.b - w2.a
     den = d1[0] * d2[1] - d1[1] * d2[0]
@@ -539,7 +677,7 @@ def _end_to(w: _Wall, x: FloatArray) -> tuple[int, float, bool]:
 
 
 def _join_corners(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
-                  params: WallFitParams, reach_m: float = 3.0) -> None:
+                  params: WallFitParams) -> None:
     """Extend two walls to their intersection where a corner echo says they meet there."""
     pairs = []
     for i in range(len(kept)):
@@ -554,7 +692,7 @@ def _join_corners(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
             if kept[i].joined[ei] or kept[j].joined[ej]:
                 continue
             near = (di <= params.corner_snap_m or bi) and (dj <= params.corner_snap_m or bj)
-            if near and max(di, dj) <= reach_m:
+            if near and max(di, dj) <= params.corner_reach_m:
                 pairs.append((max(di, dj), i, j, ei, ej, x))
     for _, i, j, ei, ej, x in sorted(pairs, key=lambda p: p[0]):
         wi, wj = kept[i], kept[j]
@@ -597,7 +735,7 @@ def _finish(kept: list[_Wall], obs: PeakObservations,
     ex = explained(obs, final, config, params.max_order, params.range_tol_m, params.cos_tol)
     return FittedWalls(
         walls_m=walls, strength=np.array([w.strength for w in kept]), sigma=sigma,
-        ambiguous=np.array([w.cand.ambiguous for w in kept], dtype=bool), pair=pair,
+        ambiguous=pair >= 0, pair=pair,
         n_peaks=np.array([w.cand.members.size for w in kept], dtype=np.int64),
         gain=np.array([w.cand.gain for w in kept]), explained_share=_share(obs, ex),
         n_candidates=n_candidates)

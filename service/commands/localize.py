@@ -21,7 +21,8 @@ from mapping.files import atomic_savez, atomic_write
 def add_localize(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("localize", help="localize a run on a wall map (paper Fig. 1(b))")
     p.add_argument("run", metavar="RUN.npz", help="run file to localize")
-    p.add_argument("--map", required=True, metavar="MAP.npz", help="wall map (omnisonar-map-1)")
+    p.add_argument("--map", required=True, metavar="MAP.npz",
+                   help="map file (omnisonar-map-2; omnisonar-map-1 is read too)")
     p.add_argument("--filter", choices=("pf", "grid"), default="pf",
                    help="particle filter (default) or exact grid filter")
     p.add_argument("--particles", type=int, default=2000, help="particle count (pf)")
@@ -127,7 +128,8 @@ def add_calibrate(sub: argparse._SubParsersAction) -> None:
                        help="pick the sensor sharpness beta of a map by NEES on tracked runs")
     p.add_argument("runs", nargs="+", metavar="RUN.npz",
                    help="tracked runs on the map (held out from its mapping runs)")
-    p.add_argument("--map", required=True, metavar="MAP.npz", help="wall map (omnisonar-map-1)")
+    p.add_argument("--map", required=True, metavar="MAP.npz",
+                   help="map file (omnisonar-map-2; omnisonar-map-1 is read too)")
     p.add_argument("--betas", default="50,100,200,400",
                    help="comma-separated candidates (default 50,100,200,400)")
     p.add_argument("--particles", type=int, default=1000, help="particle count per filter run")

@@ -48,12 +48,13 @@ def get_map_image(map_id: MapIdPath, maps: Annotated[MapStore, Depends(get_maps)
     return Response(maps.png(map_id), media_type="image/png")
 
 
+_MAP_FILE = "a map file (.npz, format omnisonar-map-2 or omnisonar-map-1)"
 _UPLOAD_BODY = {
     "requestBody": {
         "required": True,
         "content": {"application/octet-stream": {"schema": {"type": "string",
                                                              "format": "binary"}}},
-        "description": "a map file (.npz, format omnisonar-map-1)",
+        "description": _MAP_FILE,
     }
 }
 
@@ -78,7 +79,7 @@ async def upload_map(
         await run_in_threadpool(maps.save_upload, map_id, data, overwrite)
     except ValueError as exc:
         raise ClientError(422, "validation", f"not a valid map file: {exc}", "body",
-                          "a map file (.npz, format omnisonar-map-1)") from None
+                          _MAP_FILE) from None
     return MapInfo(**maps.info(map_id))
 
 

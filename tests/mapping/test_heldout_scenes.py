@@ -18,6 +18,8 @@ from mapping.quality import distance_to_walls
 from mapping.wallmap import WallMap
 
 CLEARANCE_M = 0.35
+FRESH_CLEARANCE_M = 0.40  # the fresh scenes' paths were written to keep 0.4 m
+FRESH = ("hexagon", "alcove", "z-corridor")  # written after the wall fit: group "fresh"
 SCENES = heldout_scene_names()
 PATHS = heldout_path_names()
 
@@ -29,6 +31,11 @@ INTERIOR = {
                (12.0, 6.2), (0.0, 6.2)],
     "office": [(0.0, 0.0), (6.0, 0.0), (6.0, 5.0), (0.0, 5.0)],
     "long-corridor": [(0.0, 0.0), (14.0, 0.0), (14.0, 1.8), (0.0, 1.8)],
+    "hexagon": [(0.0, 1.2), (2.6, 0.0), (5.4, 0.9), (6.3, 3.4), (3.9, 5.3), (0.6, 4.9)],
+    "alcove": [(0.0, 0.0), (7.0, 0.0), (7.0, 5.0), (4.6, 5.0), (4.6, 6.2), (2.8, 6.2),
+               (2.8, 5.0), (0.0, 5.0)],
+    "z-corridor": [(0.0, -1.0), (6.232, -1.0), (3.932, 2.984), (6.7, 2.984), (6.7, 4.984),
+                   (0.468, 4.984), (2.768, 1.0), (0.0, 1.0)],
 }
 
 
@@ -61,6 +68,45 @@ def test_the_four_scenes_of_issue_13_are_there() -> None:
     assert {"trapezoid", "t-hall", "office", "long-corridor"} <= set(SCENES)
 
 
+def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
+    assert set(FRESH) <= set(SCENES)
+    for name in PATHS:
+        spec = heldout_path(name)
+        assert spec.group == ("fresh" if spec.scene in FRESH else "held-out")
+
+
+def _directions_deg(name: str) -> np.ndarray:
+    """Direction of every wall of scene ``name`` modulo 180 deg."""
+    d = np.diff(heldout_scene(name).segments(), axis=1)[:, 0]
+    return np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180.0
+
+
+def test_hexagon_has_no_parallel_walls_and_one_partial_reflector() -> None:
+    a = _directions_deg("hexagon")
+    diff = np.abs(a[:, None] - a[None])
+    diff = np.minimum(diff, 180.0 - diff)[np.triu_indices(len(a), 1)]
+    assert len(a) == 6 and diff.min() > 10.0
+    assert sorted(heldout_scene("hexagon").reflection_coefficients().tolist()) == [0.7] + [1.0] * 5
+
+
+def test_alcove_partition_is_at_30_degrees_and_the_alcove_1p2_m_deep() -> None:
+    scene = heldout_scene("alcove")
+    walls = {w.name: w for w in scene.walls}
+    assert abs(walls["partition"].length_m - 1.5) < 0.01
+    assert abs(_directions_deg("alcove")[-1] - 30.0) < 0.5  # the others are at 0 or 90
+    assert abs(walls["alcove east"].length_m - 1.2) < 1e-9
+
+
+def test_z_corridor_is_2_m_wide_with_two_120_degree_bends() -> None:
+    a = _directions_deg("z-corridor")
+    assert np.allclose(sorted(np.round(a[1:], 1)), [0, 0, 0, 0, 120, 120], atol=0.1)
+    seg = heldout_scene("z-corridor").segments()
+    for left, right in ((1, 2), (3, 4), (5, 6)):  # each leg's two walls, 2.0 m apart
+        p, q = seg[left]
+        n = np.array([-(q - p)[1], (q - p)[0]]) / np.linalg.norm(q - p)
+        assert abs(abs(float((seg[right][0] - p) @ n)) - 2.0) < 0.005
+
+
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_parses_and_has_a_straight_and_a_curved_path(name: str) -> None:
     scene = heldout_scene(name)
@@ -84,7 +130,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
     spec = heldout_path(name)
     scene = heldout_scene(spec.scene)
     trajectory = spec.trajectory()
-    assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= CLEARANCE_M
+    clearance = FRESH_CLEARANCE_M if spec.group == "fresh" else CLEARANCE_M
+    assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
 
@@ -99,6 +146,8 @@ def test_curved_paths_sweep_their_heading_and_lines_do_not(name: str) -> None:
         assert sweep > 60
     elif name.endswith("-curve"):
         assert sweep > 90
+        if spec.group == "fresh":  # at least 60 blocks of 1.023 s at 0.1 m/s
+            assert spec.trajectory().length_m >= 6.2
     else:
         assert sweep > 45
 

@@ -93,6 +93,7 @@ def trace_images(
     img = images.positions(pos)  # (n, m, 2)
     src = np.broadcast_to(pos[None], (n, m, 2)).reshape(-1, 2)
     P = src.copy()
+    Q = src.copy()  # where each trace's current leg came from (for the corner rule)
     T = img.reshape(-1, 2).copy()
     N = P.shape[0]
     last = np.full(N, -1, dtype=np.int64)
@@ -109,8 +110,16 @@ def trace_images(
             break
         p, t = P[idx], T[idx]
         at_source = np.linalg.norm(t - src[idx], axis=1) < _SOURCE_TOL_M
-        # a corner is two bounces at one point: at most one zero-length leg in a row
+        # a corner is two bounces at one point: at most one zero-length leg in a row, and
+        # only in an inside corner (an outside corner has no specular path, issue 15)
         s, w = _first_hit(p, t, c0, dseg, last[idx], ~at_source & ~last_zero[idx])
+        zero = (w >= 0) & (s <= 1e-9)
+        if zero.any():
+            bad = np.flatnonzero(zero)[~inside_corner(Q[idx][zero], p[zero], last[idx][zero],
+                                                      w[zero], seg)]
+            if bad.size:
+                s[bad], w[bad] = _first_hit(p[bad], t[bad], c0, dseg, last[idx][bad],
+                                            np.zeros(bad.size, dtype=bool))
         hit = w >= 0
         done_ok = at_source & ~hit
         valid[idx[done_ok]] = True
@@ -126,6 +135,7 @@ def trace_images(
         active[go[too_many]] = False
         go, wg, k = go[~too_many], wg[~too_many], k[~too_many]
         sg = s[~stop][~too_many]
+        Q[go] = P[go]
         P[go] = P[go] + sg[:, None] * (T[go] - P[go])
         T[go] = (WA[wg] @ T[go][:, :, None])[:, :, 0] + Wb[wg]
         walls[go, k] = wg
@@ -192,3 +202,36 @@ def _first_hit(
     w = np.argmin(s, axis=1)
     best = s[np.arange(s.shape[0]), w]
     return best, np.where(np.isfinite(best), w, -1).astype(np.int64)
+
+
+def inside_corner(came_from: FloatArray, corner: FloatArray, wall_a: IntArray,
+                  wall_b: IntArray, segments: FloatArray) -> BoolArray:
+    """Whether each two-bounces-at-one-point path is in an inside corner.
+
+    The ray arrives at the corner C (on walls a and b) from ``came_from``; geometric acoustics
+    gives it a specular continuation only if that point lies strictly inside a convex wedge
+    spanned by a ray of wall a and a ray of wall b from C (a wall through C in its interior
+    offers both directions, a wall ending at C only the one along it). An outside (reflex,
+    air-side angle > 180 deg) corner has no such wedge on the air side: it only diffracts.
+    """
+    q = came_from - corner
+    out = np.zeros(corner.shape[0], dtype=bool)
+    for ea in _rays(segments, wall_a, corner):
+        for eb in _rays(segments, wall_b, corner):
+            k = ea[:, 0] * eb[:, 1] - ea[:, 1] * eb[:, 0]
+            c1 = (ea[:, 0] * q[:, 1] - ea[:, 1] * q[:, 0]) * k
+            c2 = (q[:, 0] * eb[:, 1] - q[:, 1] * eb[:, 0]) * k
+            out |= (np.abs(k) > 1e-12) & (c1 > 0) & (c2 > 0)
+    return out
+
+
+def _rays(segments: FloatArray, wall: IntArray, corner: FloatArray) -> list[FloatArray]:
+    """Directions from each corner towards both ends of its wall ((0, 0) where the corner is
+    that end)."""
+    out = []
+    for end in (0, 1):
+        e = segments[wall, end] - corner
+        short = np.hypot(e[:, 0], e[:, 1]) <= 1e-9 * np.maximum(
+            np.hypot(*(segments[wall, 1] - segments[wall, 0]).T), 1.0)
+        out.append(np.where(short[:, None], 0.0, e))
+    return out

@@ -184,7 +184,7 @@ def _brute_valid(segments: np.ndarray, x: np.ndarray, walls: tuple[int, ...]) ->
         imgs.append(A[w] @ imgs[-1] + b[w])
     if np.linalg.norm(imgs[-1] - x) < 1e-9:
         return False
-    points = []
+    points: list[np.ndarray] = []
     target = x  # receiver
     for k in range(len(walls) - 1, -1, -1):
         w = walls[k]
@@ -199,6 +199,10 @@ def _brute_valid(segments: np.ndarray, x: np.ndarray, walls: tuple[int, ...]) ->
         s_min = 1e-9 if k == len(walls) - 1 else -1e-9  # a corner bounce has s = 0
         if not (s_min < s < 1 - 1e-12 and -1e-9 <= u <= 1 + 1e-9):
             return False
+        if abs(s) <= 1e-9:  # two bounces at one point: only an inside corner reflects
+            came_from = points[-2] if len(points) >= 2 else x
+            if not _inside_corner(segments[walls[k + 1]], segments[w], target, came_from):
+                return False
         target = target + s * r
         points.append(target)
     legs = list(itertools.pairwise([x, *points, x]))
@@ -207,6 +211,21 @@ def _brute_valid(segments: np.ndarray, x: np.ndarray, walls: tuple[int, ...]) ->
             if _crosses(p, q, segments[w]):
                 return False
     return True
+
+
+def _inside_corner(wall_a: np.ndarray, wall_b: np.ndarray, corner: np.ndarray,
+                   x: np.ndarray) -> bool:
+    """Each wall runs from the corner into the other's half-plane on the side of x (the
+    air side of both: an inside corner); at an outside corner one of them runs away."""
+    def side(seg: np.ndarray, p: np.ndarray) -> float:
+        d = seg[1] - seg[0]
+        return float(d[0] * (p[1] - seg[0][1]) - d[1] * (p[0] - seg[0][0]))
+
+    def reaches(seg: np.ndarray, other: np.ndarray) -> bool:
+        return any(side(other, end) * side(other, x) > 1e-12 for end in seg
+                   if np.hypot(*(end - corner)) > 1e-9)
+
+    return reaches(wall_a, wall_b) and reaches(wall_b, wall_a)
 
 
 def _crosses(p: np.ndarray, q: np.ndarray, seg: np.ndarray) -> bool:
@@ -287,3 +306,28 @@ def test_image_cap_truncates_whole_orders_or_raises():
     assert capped.n == int(np.sum(keep))
     with pytest.raises(ValueError, match="max_images"):
         candidate_images(SHOEBOX, pos, 6, max_images=30)
+
+
+def test_outside_corner_gives_no_two_bounce_path():
+    # two walls meeting at an outside (reflex) corner: from the air side at 270 deg there is
+    # no specular two-bounce path (issue 15); the paths left are the first-order ones
+    walls = np.array([[[0, 0], [4, 0]], [[0, 0], [0, 4]]], float)  # the solid is x, y > 0
+    for xy in [(-1.0, -1.0), (-2.0, -0.5), (-0.5, -3.0)]:
+        got = _valid_points(walls, xy, 2)
+        assert all(k == 1 for k, _ in got.values()), (xy, got)
+
+
+def test_inside_corner_keeps_its_one_two_bounce_image():
+    walls = np.array([[[0, 0], [4, 0]], [[0, 0], [0, 4]]], float)  # the air is x, y > 0
+    got = _valid_points(walls, (1.0, 2.0), 2)
+    assert sorted(k for k, _ in got.values()) == [1, 1, 2]
+    assert (-1.0, -2.0) in got
+
+
+def test_l_room_re_entrant_corner_gives_no_phantom_echo():
+    # from the lower arm, the reflex corner (3, 3) of the L used to give a full-strength
+    # "two bounces at one point" echo; geometric acoustics gives none
+    for xy in [(5.0, 1.0), (4.2, 0.6), (1.0, 5.0)]:
+        got = _valid_points(L_ROOM, xy, 2)
+        for k, walls in got.values():
+            assert not (k == 2 and set(walls) == {2, 3}), (xy, walls)
