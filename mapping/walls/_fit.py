@@ -439,8 +439,11 @@ def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
     qm = p + 2 * np.sum(rel * d, axis=1)[:, None] * d - rel
     diff = np.abs(np.angle(np.exp(1j * (phi_m[:, None] - phi_m[None, :]))))
     tol = math.radians(10.0)
-    f0 = float(phi_m[int(np.argmax((diff <= tol).sum(axis=1)))])
-    ok = np.abs(np.angle(np.exp(1j * (phi_m - f0)))) <= tol
+    side = np.abs(np.sin(phi - travel)) > 0.5  # head-on echoes are their own mirror
+    if side.sum() < params.min_blocks:
+        return None
+    f0 = float(phi_m[side][int(np.argmax((diff[side][:, side] <= tol).sum(axis=1)))])
+    ok = side & (np.abs(np.angle(np.exp(1j * (phi_m - f0)))) <= tol)
     for _ in range(3):  # total least squares on the mirrored points, then trim
         if ok.sum() < params.min_blocks:
             return None
