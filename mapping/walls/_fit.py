@@ -421,9 +421,40 @@ def _mirror_pass(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
                           params.range_tol_m, params.cos_tol)
         new = after & ~before
         if np.unique((obs.block + 100_000 * obs.run)[new]).size >= params.min_blocks:
-            out.append(trial)
+            out.append(_refit(trial, obs, params))
             group += 1
     return out
+
+
+def _refit(w: _Wall, obs: PeakObservations, params: WallFitParams) -> _Wall:
+    """The wall's line refitted on every peak it explains at first order (not only on the
+    peaks it was proposed from), its extent from their specular points."""
+    line = w.cand.line
+    inl = inliers(obs, line.phi_rad, line.rho_m, 2 * params.range_tol_m, params.cos_tol)
+    p = np.stack([obs.x_m, obs.y_m], axis=1)
+    inl &= ~np.asarray(_on_side_of(p, w, line))
+    if np.unique((obs.block + 100_000 * obs.run)[inl]).size < params.min_blocks:
+        return w
+    sub = obs.subset(inl)
+    fit = fit_line(sub, line.phi_rad, line.rho_m, params.cos_tol, params.range_sigma_m)
+    keep = inliers(sub, fit.phi_rad, fit.rho_m, params.range_tol_m, params.cos_tol)
+    t = np.array([-math.sin(fit.phi_rad), math.cos(fit.phi_rad)])
+    q = specular_points(sub.subset(keep), fit.phi_rad)
+    s = q @ t
+    lo, hi = float(w.a @ t), float(w.b @ t)
+    s = s[(s >= min(lo, hi) - params.gap_m) & (s <= max(lo, hi) + params.gap_m)]
+    if s.size < params.min_blocks:
+        return w
+    base = fit.rho_m * np.array([math.cos(fit.phi_rad), math.sin(fit.phi_rad)])
+    a, b = base + s.min() * t, base + s.max() * t
+    members = np.nonzero(inl)[0][keep]
+    return _Wall(Candidate(fit, a, b, members, w.cand.gain), a, b, w.group, w.strength)
+
+
+def _on_side_of(p: FloatArray, w: _Wall, line: LineFit) -> NDArray[np.bool_]:
+    """Poses on the far side of the wall's line (they cannot hear its near face)."""
+    n = np.array([math.cos(line.phi_rad), math.sin(line.phi_rad)])
+    return np.asarray(p @ n > line.rho_m)
 
 
 def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
@@ -455,13 +486,16 @@ def _mirror_candidate(sub: PeakObservations, w: _Wall, params: WallFitParams
         ok = ok & (np.abs((qm - c) @ n) <= params.range_tol_m)
     if np.unique(sub.block[ok] + 100_000 * sub.run[ok]).size < params.min_blocks:
         return None
-    f, r0 = math.atan2(n[1], n[0]), float(n @ c)
+    # refine on the ranges: under the mirror hypothesis each range is the distance from its
+    # pose to the mirror wall (the Doppler cosine is the same on both sides)
+    line = fit_line(sub.subset(ok), math.atan2(n[1], n[0]), float(n @ c), params.cos_tol,
+                    params.range_sigma_m)
+    f, r0 = line.phi_rad, line.rho_m
     t = np.array([-math.sin(f), math.cos(f)])
-    s = qm[ok] @ t
+    s = specular_points(sub.subset(ok), f) @ t
     if np.ptp(s) < params.min_length_m:
         return None
     base = r0 * np.array([math.cos(f), math.sin(f)])
-    line = LineFit(f, r0, w.cand.line.cov, w.cand.line.sigma_range_m)
     return line, base + s.min() * t, base + s.max() * t, np.nonzero(ok)[0]
 
 
