@@ -222,7 +222,7 @@ def _fit_summary(fitted: FittedWalls) -> dict[str, Any]:
     return {"walls": fitted.n, "candidates": fitted.n_candidates,
             "ambiguous": int(fitted.ambiguous.sum()),
             "explained_share": round(fitted.explained_share, 4),
-            "peaks_per_wall": fitted.n_peaks.tolist()}
+            "peaks_per_wall": fitted.n_peaks.tolist(), "warning": fitted.warning}
 
 
 def _add_aligned(G: FloatArray, extent: GridExtent, part: FloatArray, at: GridExtent) -> None:

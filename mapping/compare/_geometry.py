@@ -57,6 +57,21 @@ def _on_segment(p: FloatArray, seg: FloatArray) -> bool:
     return bool(np.hypot(*(a + u * e - p)) <= 1e-9 * max(1.0, float(np.hypot(*e))))
 
 
+def _inside_corner(wall_a: FloatArray, wall_b: FloatArray, corner: FloatArray,
+                   came_from: FloatArray) -> bool:
+    """Each wall runs from the corner into the other's half-plane on the side the ray came
+    from: the air side of both (an inside corner). At an outside corner one runs away."""
+    def side(wall: FloatArray, p: FloatArray) -> float:
+        d = wall[1] - wall[0]
+        return float(d[0] * (p[1] - wall[0][1]) - d[1] * (p[0] - wall[0][0]))
+
+    def reaches(wall: FloatArray, other: FloatArray) -> bool:
+        return any(side(other, end) * side(other, came_from) > 1e-12 for end in wall
+                   if np.hypot(*(end - corner)) > 1e-9)
+
+    return reaches(wall_a, wall_b) and reaches(wall_b, wall_a)
+
+
 def leg_blocked(p: ArrayLike, q: ArrayLike, segments_m: ArrayLike) -> bool:
     """True if the open segment p -> q crosses or touches a wall strictly between its ends."""
     P, Q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
@@ -103,6 +118,8 @@ def specular_path(source_m: ArrayLike, receiver_m: ArrayLike, walls: Sequence[in
         if (hit is None or not (t_min <= hit[0] < 1 - _END_TOL)
                 or not -_END_TOL <= hit[1] <= 1 + _END_TOL):
             return None
+        if hit[0] < _END_TOL and not _inside_corner(seg[w[n + 1]], seg[w[n]], cur, pts[-2]):
+            return None  # an outside corner has no two-bounce specular path (issue 15)
         cur = cur + max(hit[0], 0.0) * (images[n + 1] - cur)
         pts.append(cur)
     pts.append(src)

@@ -29,7 +29,7 @@ inliers, the line fit), ``_explain`` (which peaks a wall set explains, occlusion
 
 from __future__ import annotations
 
-from mapping.walls._fit import FittedWalls, WallFitParams, fit_walls
+from mapping.walls._fit import EXPLAINED_WARNING, FittedWalls, WallFitParams, fit_walls
 from mapping.walls._peaks import (
     PeakObservations,
     PeakParams,
@@ -40,6 +40,7 @@ from mapping.walls._peaks import (
 )
 
 __all__ = [
+    "EXPLAINED_WARNING",
     "FittedWalls",
     "PeakObservations",
     "PeakParams",

@@ -271,6 +271,27 @@ class FittedWalls:
         """Number of walls."""
         return int(self.strength.size)
 
+    @property
+    def warning(self) -> str:
+        """Empty when the walls explain most of what was heard; otherwise what is wrong.
+
+        A map whose walls explain less than :data:`EXPLAINED_WARNING` of the echo-peak
+        weight (forward model, up to the fit's ``max_order``) leaves much of what the sonar
+        heard unexplained - unmapped walls, objects, or echoes the model does not know
+        (diffraction, people) - and must say so rather than look complete.
+        """
+        if self.n == 0:
+            return "no wall was fitted: the runs explain nothing as walls"
+        if self.explained_share < EXPLAINED_WARNING:
+            return (f"the fitted walls explain only {self.explained_share:.0%} of the echo "
+                    f"energy heard (expected >= {EXPLAINED_WARNING:.0%}): the map is "
+                    "incomplete or the scene holds what a wall model cannot explain")
+        return ""
+
+
+#: Share of the echo-peak weight below which a fitted map warns that it is incomplete.
+EXPLAINED_WARNING = 0.6
+
 
 @dataclass
 class _Wall:

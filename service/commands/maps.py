@@ -123,6 +123,11 @@ def _cmd_build_map(args: argparse.Namespace) -> int:
           f"{wm.coverage.mean():.0%} of cells observed, from {len(paths)} run(s); blocks used "
           f"{prov['blocks_used']}, untracked skipped {prov['blocks_untracked']}, unobservable "
           f"skipped {prov['blocks_unobservable']}")
+    fit = prov.get("fit", {})
+    if fit:
+        print(f"walls explain {fit['explained_share']:.0%} of the echo energy heard")
+        if fit.get("warning"):
+            print(f"warning: {fit['warning']}", file=sys.stderr)
     if args.png:
         from service.plot import write_map_png
 

@@ -175,3 +175,18 @@ def test_built_in_scenes_from_curved_runs(path: str, n_blocks: int, recall: floa
     # a wall heard only where its echo coincides with its twin's across a straight stretch
     # (the L-room's inner wall, found as the mirror of the outer one) is tilted up to ~5 deg
     assert np.median(errors) <= 1.0 and max(errors) <= 6.0
+
+
+def test_a_map_that_explains_little_says_so(shoebox_map) -> None:
+    from dataclasses import replace
+
+    from mapping.walls import EXPLAINED_WARNING, FittedWalls
+
+    _, wm = shoebox_map
+    assert wm.provenance["fit"]["warning"] == ""
+    empty = FittedWalls(np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool),
+                        np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), 0.0, 5)
+    assert "no wall" in empty.warning
+    one = replace(empty, walls_m=np.zeros((1, 4)), strength=np.ones(1),
+                  explained_share=EXPLAINED_WARNING - 0.1)
+    assert "explain only" in one.warning
