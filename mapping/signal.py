@@ -352,3 +352,21 @@ def transmitted_exact(t_s: NDArray[np.floating], config: SonarConfig) -> FloatAr
         phase = np.exp(2j * np.pi * k * ((tj * config.fs_hz) % p) / p)
         out.flat[j] = np.sum(weights * (spec * phase).real)
     return out.reshape(np.shape(t_s)) if np.ndim(t_s) else out
+
+
+def checked_speed_m_s(speed_m_s: float, config: SonarConfig) -> float:
+    """``speed_m_s`` as a float, or ``ValueError`` naming it unless finite and below c/10.
+
+    Eq. 1 and everything that predicts it (the forward model) assume ``|v| << c``; c/10 is
+    the bound both enforce.
+    """
+    if not isinstance(config, SonarConfig):
+        raise ValueError(f"config must be a SonarConfig, got {type(config).__name__}")
+    try:
+        v = float(speed_m_s)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"speed_m_s must be a real number, got {speed_m_s!r}") from exc
+    c = config.sound_speed_m_s
+    if not math.isfinite(v) or abs(v) >= c / 10.0:
+        raise ValueError(f"speed_m_s must be finite with |speed_m_s| < c/10 = {c / 10:g}, got {v}")
+    return v

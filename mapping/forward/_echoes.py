@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mapping.forward._kernels import _batch_echoes, _Limits, _Out, _single_echoes, _Walls
-from mapping.signal import SonarConfig
+from mapping.signal import SonarConfig, checked_speed_m_s
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -216,17 +216,10 @@ def _kernel_walls(walls: WallSet) -> _Walls:
 
 
 def _limits(speed_m_s: float, config: SonarConfig, params: ForwardParams) -> _Limits:
-    if not isinstance(config, SonarConfig):
-        raise ValueError(f"config must be a SonarConfig, got {type(config).__name__}")
     if not isinstance(params, ForwardParams):
         raise ValueError(f"params must be a ForwardParams, got {type(params).__name__}")
-    try:
-        v = float(speed_m_s)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"speed_m_s must be a real number, got {speed_m_s!r}") from exc
+    v = checked_speed_m_s(speed_m_s, config)
     c = config.sound_speed_m_s
-    if not math.isfinite(v) or abs(v) >= c / 10.0:
-        raise ValueError(f"speed_m_s must be finite with |speed_m_s| < c/10, got {v}")
     max_range = config.max_range_m if params.max_range_m is None else params.max_range_m
     return _Limits(int(params.max_order), 2.0 * float(max_range), float(params.min_amplitude),
                    float(c), SPREADING_POWER[params.spreading], v)

@@ -15,7 +15,6 @@ batched over directions.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +32,7 @@ from mapping.heatmap._resampling import (
     required_margin,
 )
 from mapping.run import Run
-from mapping.signal import SonarConfig
+from mapping.signal import SonarConfig, checked_speed_m_s
 
 #: Direction is declared observable when the largest Doppler time drift over the block
 #: (|1 - alpha_0| * B / 2, samples) reaches this many samples.
@@ -87,15 +86,7 @@ def _validate(
     block: NDArray[np.floating], speed_m_s: float, config: SonarConfig,
     left: int | None, right: int | None,
 ) -> tuple[FloatArray, int, int, float]:
-    if not isinstance(config, SonarConfig):
-        raise ValueError(f"config must be a SonarConfig, got {type(config).__name__}")
-    try:
-        v = float(speed_m_s)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"speed_m_s must be a real number, got {speed_m_s!r}") from exc
-    c = config.sound_speed_m_s
-    if not math.isfinite(v) or abs(v) >= c / 10.0:
-        raise ValueError(f"speed_m_s must be finite with |speed_m_s| < c/10 = {c / 10:g}, got {v}")
+    v = checked_speed_m_s(speed_m_s, config)
     arr = np.asarray(block)
     if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.number):
         raise ValueError(f"block must be a 1-D numeric array, got shape {arr.shape}")
