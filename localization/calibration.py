@@ -4,14 +4,16 @@ A tempered likelihood ``exp(beta rho)`` treats each block as independent evidenc
 errors and the overlap between blocks make that optimistic, so beta is chosen per map from
 tracked runs such that the particle filter's reported covariance is honest: the mean
 normalized estimation error squared of the best mode (3 degrees of freedom) is 3.
-:func:`calibrate_beta` runs the filter per candidate, :func:`pick_beta` interpolates.
+:func:`calibrate_beta` runs the filter per candidate, :func:`pick_beta` interpolates; when
+no candidate brackets the target, :func:`widen_candidate` proposes the next one beyond the ends
+(:func:`search_beta` tries up to ``max_widen`` of them).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,17 +76,55 @@ class BetaCalibration:
     beta : float
         The chosen sharpness.
     betas : tuple of float
-        Candidates tried, ascending.
+        Candidates tried, ascending (the given ones and any added by widening).
     nees_mean : tuple of float
         Mean NEES over the runs that stayed tracked, per candidate (NaN: every run lost).
     lost_runs : tuple of int
         Runs (x seeds) that left 10 cm / 10 deg at some block, per candidate.
+    bracketed : bool
+        Whether the target NEES lies between two candidates (:func:`brackets_target`), so
+        ``beta`` is interpolated; False: ``beta`` is the nearest candidate, an end of the range.
+    widened : tuple of float
+        Candidates added beyond the given range because none bracketed the target, in the
+        order they were tried (empty: the given candidates bracketed it, or widening was off).
     """
 
     beta: float
     betas: tuple[float, ...]
     nees_mean: tuple[float, ...]
     lost_runs: tuple[int, ...]
+    bracketed: bool = True
+    widened: tuple[float, ...] = ()
+
+
+def _usable(betas: Sequence[float], nees_mean: Sequence[float], lost_runs: Sequence[int],
+            target_nees: float) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Validated ``(beta, log(NEES / target), NEES, usable)``, sorted by beta; a candidate is
+    usable when it lost no run and its mean NEES is finite and > 0."""
+    b = np.asarray(betas, dtype=np.float64)
+    q = np.asarray(nees_mean, dtype=np.float64)
+    lost = np.asarray(lost_runs)
+    if not (b.shape == q.shape == lost.shape) or b.ndim != 1 or b.size == 0:
+        raise ValueError("betas, nees_mean and lost_runs must be 1-d of equal, nonzero length")
+    if not np.all(b > 0) or not np.all(np.isfinite(b)):
+        raise ValueError("betas must be finite and > 0")
+    if not target_nees > 0:
+        raise ValueError(f"target_nees must be > 0, got {target_nees}")
+    order = np.argsort(b, kind="stable")
+    b, q, lost = b[order], q[order], lost[order]
+    ok = (lost == 0) & np.isfinite(q) & (q > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lq = np.log(q) - math.log(target_nees)
+    return b, lq, q, ok
+
+
+def _crossing(bs: FloatArray, lq: FloatArray) -> float | None:
+    """The first upward crossing of 0 by ``lq`` (piecewise linear in log beta), or None."""
+    lb = np.log(bs)
+    for i in range(lb.size - 1):
+        if lq[i] <= 0.0 <= lq[i + 1] and lq[i + 1] > lq[i]:
+            return float(math.exp(lb[i] + (lb[i + 1] - lb[i]) * -lq[i] / (lq[i + 1] - lq[i])))
+    return None
 
 
 def pick_beta(betas: Sequence[float], nees_mean: Sequence[float], lost_runs: Sequence[int],
@@ -103,31 +143,129 @@ def pick_beta(betas: Sequence[float], nees_mean: Sequence[float], lost_runs: Seq
     ValueError
         Lengths differ, a beta is not > 0, or every candidate lost a run.
     """
-    b = np.asarray(betas, dtype=np.float64)
-    q = np.asarray(nees_mean, dtype=np.float64)
-    lost = np.asarray(lost_runs)
-    if not (b.shape == q.shape == lost.shape) or b.ndim != 1 or b.size == 0:
-        raise ValueError("betas, nees_mean and lost_runs must be 1-d of equal, nonzero length")
-    if not np.all(b > 0) or not np.all(np.isfinite(b)):
-        raise ValueError("betas must be finite and > 0")
-    if not target_nees > 0:
-        raise ValueError(f"target_nees must be > 0, got {target_nees}")
-    ok = (lost == 0) & np.isfinite(q) & (q > 0)
+    b, lq, _, ok = _usable(betas, nees_mean, lost_runs, target_nees)
     if not ok.any():
         raise ValueError("every beta candidate lost a run (or gave no NEES): nothing to pick")
-    order = np.argsort(b[ok])
-    bs = b[ok][order]
-    lb, lq = np.log(bs), np.log(q[ok][order]) - math.log(target_nees)
-    for i in range(lb.size - 1):
-        if lq[i] <= 0.0 <= lq[i + 1] and lq[i + 1] > lq[i]:
-            return float(math.exp(lb[i] + (lb[i + 1] - lb[i]) * -lq[i] / (lq[i + 1] - lq[i])))
-    return float(bs[int(np.argmin(np.abs(lq)))])
+    beta = _crossing(b[ok], lq[ok])
+    return beta if beta is not None else float(b[ok][int(np.argmin(np.abs(lq[ok])))])
+
+
+def brackets_target(betas: Sequence[float], nees_mean: Sequence[float],
+                    lost_runs: Sequence[int], target_nees: float = 3.0) -> bool:
+    """Whether :func:`pick_beta` interpolates: the usable candidates' mean NEES crosses
+    ``target_nees`` upward between two of them, or one of them hits it exactly.
+
+    Raises
+    ------
+    ValueError
+        As :func:`pick_beta` for malformed input (every candidate lost: False).
+    """
+    b, lq, _, ok = _usable(betas, nees_mean, lost_runs, target_nees)
+    return bool(ok.any()) and (_crossing(b[ok], lq[ok]) is not None
+                               or bool(np.any(lq[ok] == 0.0)))
+
+
+def widen_candidate(betas: Sequence[float], nees_mean: Sequence[float],
+                    lost_runs: Sequence[int], target_nees: float = 3.0,
+                    factor: float = 2.0) -> float | None:
+    """The next candidate beyond the ends when none brackets ``target_nees``, or None.
+
+    NEES grows with beta (:func:`pick_beta`), so when every usable candidate's mean NEES is
+    below the target, the largest beta times ``factor``; when every one is above, the
+    smallest divided by ``factor``. None when the candidates bracket the target already, when
+    the end to widen from lost a run (a sharper, resp. blunter, likelihood is not expected to
+    track better), when no candidate is usable, or when the NEES crosses the target only
+    downward (widening would not find the upward crossing the rule looks for).
+
+    Parameters
+    ----------
+    betas, nees_mean, lost_runs : sequence (n,)
+        As for :func:`pick_beta`, in any order.
+    target_nees : float
+    factor : float
+        > 1: the step beyond the ends, a ratio (2 doubles / halves).
+
+    Raises
+    ------
+    ValueError
+        As :func:`pick_beta`, or ``factor`` <= 1.
+    """
+    if not (math.isfinite(factor) and factor > 1.0):
+        raise ValueError(f"factor must be finite and > 1, got {factor}")
+    if brackets_target(betas, nees_mean, lost_runs, target_nees):
+        return None
+    b, lq, _, ok = _usable(betas, nees_mean, lost_runs, target_nees)
+    if not ok.any():
+        return None
+    if ok[-1] and np.all(lq[ok] < 0.0):
+        return float(b[-1] * factor)
+    if ok[0] and np.all(lq[ok] > 0.0):
+        return float(b[0] / factor)
+    return None
+
+
+def search_beta(evaluate: Callable[[float], tuple[float, int]], betas: Sequence[float],
+                target_nees: float = 3.0, max_widen: int = 0,
+                factor: float = 2.0) -> BetaCalibration:
+    """Evaluate candidates, widen the range while none brackets the target, pick beta.
+
+    Every candidate of ``betas`` is evaluated in ascending order; then, while
+    :func:`widen_candidate` proposes one and fewer than ``max_widen`` were added, that one
+    too. :func:`pick_beta` picks among all of them.
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``beta -> (mean NEES, lost runs)`` (:func:`calibrate_beta` runs the filter).
+    betas : sequence of float
+        Candidates, finite and > 0.
+    target_nees : float
+    max_widen : int
+        >= 0: at most this many candidates beyond the given range (0: none).
+    factor : float
+        Step of the widening (:func:`widen_candidate`).
+
+    Returns
+    -------
+    BetaCalibration
+
+    Raises
+    ------
+    ValueError
+        Bad ``betas``, ``max_widen`` or ``factor``; every candidate lost a run.
+    """
+    if not betas or any(not (math.isfinite(b) and b > 0) for b in betas):
+        raise ValueError("betas must be a nonempty sequence of finite values > 0")
+    if max_widen < 0:
+        raise ValueError(f"max_widen must be >= 0, got {max_widen}")
+    if not (math.isfinite(factor) and factor > 1.0):
+        raise ValueError(f"factor must be finite and > 1, got {factor}")
+    tried = {float(b): evaluate(float(b)) for b in sorted(betas)}
+    widened: list[float] = []
+
+    def table() -> tuple[list[float], list[float], list[int]]:
+        cand = sorted(tried)
+        return cand, [tried[b][0] for b in cand], [tried[b][1] for b in cand]
+
+    while len(widened) < max_widen:
+        nxt = widen_candidate(*table(), target_nees, factor)
+        if nxt is None:
+            break
+        tried[nxt] = evaluate(nxt)
+        widened.append(nxt)
+    cand, nees_mean, lost = table()
+    return BetaCalibration(beta=pick_beta(cand, nees_mean, lost, target_nees),
+                           betas=tuple(cand), nees_mean=tuple(float(q) for q in nees_mean),
+                           lost_runs=tuple(int(n) for n in lost),
+                           bracketed=brackets_target(cand, nees_mean, lost, target_nees),
+                           widened=tuple(widened))
 
 
 def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
                    betas: Sequence[float], config: FilterConfig, rng: np.random.Generator,
                    prior_cov: FloatArray | None = None, n_seeds: int = 1,
-                   target_nees: float = 3.0) -> BetaCalibration:
+                   target_nees: float = 3.0, max_widen: int = 0,
+                   widen_factor: float = 2.0) -> BetaCalibration:
     """Pick the sensor sharpness ``beta`` that makes the reported covariance honest.
 
     For every candidate beta, the particle filter (``config``; ``tables`` with their beta
@@ -135,7 +273,8 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
     ``prior_cov`` (default 10 cm / 10 deg), ``n_seeds`` times; the normalized estimation
     error squared of the best mode, ``e^T cov^-1 e`` (3 degrees of freedom, so 3 on average
     when the covariance is honest), is averaged over the blocks and runs. :func:`pick_beta`
-    then interpolates the beta whose mean NEES is ``target_nees``.
+    then interpolates the beta whose mean NEES is ``target_nees``. When no candidate brackets
+    the target, up to ``max_widen`` more are tried beyond the ends (:func:`search_beta`).
 
     Parameters
     ----------
@@ -154,6 +293,11 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
         Filter runs per run and candidate.
     target_nees : float
         3 for an honest 3-dof covariance.
+    max_widen : int
+        Candidates at most added beyond the given range (0, the default: none).
+    widen_factor : float
+        > 1: each added candidate is the largest times it or the smallest divided by it
+        (:func:`widen_candidate`).
 
     Returns
     -------
@@ -167,15 +311,17 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
         raise ValueError("betas must be a nonempty sequence of finite values > 0")
     cov = (default_start_cov() if prior_cov is None
            else np.asarray(prior_cov, dtype=np.float64))
-    cand = sorted(float(b) for b in betas)
-    seeds = rng.integers(0, 2**63 - 1, size=(len(cand), len(runs), n_seeds))
-    nees_mean, lost = [], []
-    for i, beta in enumerate(cand):
+    # the given candidates' seeds are drawn up front (as before widening existed); each
+    # added candidate draws its own afterwards
+    seeds = list(rng.integers(0, 2**63 - 1, size=(len(betas), len(runs), n_seeds)))
+
+    def evaluate(beta: float) -> tuple[float, int]:
+        seed = seeds.pop(0) if seeds else rng.integers(0, 2**63 - 1, size=(len(runs), n_seeds))
         tab = dataclasses.replace(tables, config=dataclasses.replace(tables.config, beta=beta))
         vals, n_lost = [], 0
         for j, run in enumerate(runs):
             for s in range(n_seeds):
-                pf = ParticleFilter(tab, config, np.random.default_rng(int(seeds[i, j, s])),
+                pf = ParticleFilter(tab, config, np.random.default_rng(int(seed[j, s])),
                                     pose=run.truth[0], cov=cov)
                 ests = list(run_filter(pf, run.heat_maps, run.speed_m_s, run.yaw_rate_rad_s,
                                        run.t_s, run.block_s))
@@ -185,7 +331,6 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
                     vals.append(m.nees_mean)
                 else:
                     n_lost += 1
-        nees_mean.append(float(np.mean(vals)) if vals else math.nan)
-        lost.append(n_lost)
-    return BetaCalibration(beta=pick_beta(cand, nees_mean, lost, target_nees),
-                           betas=tuple(cand), nees_mean=tuple(nees_mean), lost_runs=tuple(lost))
+        return (float(np.mean(vals)) if vals else math.nan), n_lost
+
+    return search_beta(evaluate, betas, target_nees, max_widen, widen_factor)

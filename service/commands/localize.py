@@ -10,11 +10,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mapping.files import atomic_savez, atomic_write
+
+if TYPE_CHECKING:
+    from localization.calibration import BetaCalibration
 
 
 # ---- localize (issue 6) ---------------------------------------------------------------
@@ -135,12 +138,45 @@ def add_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--particles", type=int, default=1000, help="particle count per filter run")
     p.add_argument("--seeds", type=int, default=2, help="filter runs per run and candidate")
     p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--widen", type=int, default=4, metavar="N",
+                   help="when no candidate brackets mean NEES 3, try up to N more beyond the "
+                        "ends, doubling the largest or halving the smallest; 0: off (default 4)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_cmd_calibrate)
 
 
+def _calibration_warning(cal: BetaCalibration, max_widen: int,
+                         target_nees: float = 3.0) -> str | None:
+    """The stderr warning of ``calibrate`` when the given candidates did not bracket the
+    target NEES (what was tried, whether widening found a crossing), else None."""
+    if cal.bracketed and not cal.widened:
+        return None
+
+    def entry(b: float) -> str:
+        i = cal.betas.index(b)
+        lost = f" ({cal.lost_runs[i]} lost)" if cal.lost_runs[i] else ""
+        return f"{b:g}: {cal.nees_mean[i]:.2f}{lost}"
+
+    table = ", ".join(entry(b) for b in cal.betas if b not in cal.widened)
+    text = (f"warning: no candidate beta brackets the target mean NEES {target_nees:g} "
+            f"(mean NEES per beta {table})")
+    if cal.widened:
+        text += f"; widened the search, tried beta {', '.join(map(entry, cal.widened))}"
+    if cal.bracketed:
+        return text + f"; the crossing lies at beta {cal.beta:.1f}"
+    if len(cal.widened) >= max_widen:
+        why = ("--widen 0 turns widening off" if max_widen == 0
+               else f"stopped at the cap of {max_widen} (--widen)")
+    else:
+        why = ("cannot widen further: the end candidate lost a run, or NEES crosses "
+               f"{target_nees:g} only downward")
+    return (text + f"; {why}. Picked the nearest, beta = {cal.beta:.1f}: its covariance is "
+            "not honest; try other --betas or more runs")
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     import json
+    import math
 
     from localization.calibration import CalibrationRun, calibrate_beta
     from localization.particle_filter import FilterConfig
@@ -159,16 +195,25 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             runs.append(CalibrationRun.from_run(read_run(path)))
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
+    if args.widen < 0:
+        raise ValueError(f"--widen must be >= 0, got {args.widen}")
     cal = calibrate_beta(tables, runs, betas, config, np.random.default_rng(args.seed),
-                         n_seeds=args.seeds)
+                         n_seeds=args.seeds, max_widen=args.widen)
+    warning = _calibration_warning(cal, args.widen)
+    if warning is not None:
+        print(warning, file=sys.stderr)
     if args.json:
-        print(json.dumps({"beta": cal.beta, "betas": list(cal.betas),
-                          "nees_mean": list(cal.nees_mean), "lost_runs": list(cal.lost_runs)}))
+        nees = [q if math.isfinite(q) else None for q in cal.nees_mean]
+        print(json.dumps({"beta": cal.beta, "betas": list(cal.betas), "nees_mean": nees,
+                          "lost_runs": list(cal.lost_runs), "bracketed": cal.bracketed,
+                          "widened": list(cal.widened)}))
         return 0
     print("   beta  mean NEES  lost runs")
     for b, q, lost in zip(cal.betas, cal.nees_mean, cal.lost_runs, strict=True):
         print(f"{b:7.1f}  {q:9.2f}  {lost:9d}")
-    print(f"beta = {cal.beta:.1f} (mean NEES 3 = honest covariance); use it with "
+    how = ("mean NEES 3 = honest covariance" if cal.bracketed
+           else "the nearest candidate: no crossing of mean NEES 3, see the warning")
+    print(f"beta = {cal.beta:.1f} ({how}); use it with "
           f"`omnisonar localize --beta {cal.beta:.0f}`")
     return 0
 

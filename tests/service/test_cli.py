@@ -39,7 +39,10 @@ def test_cli_localize_tracked(simulated: tuple[Any, Any], tmp_path: Any,
 def test_cli_calibrate_and_localize_with_beta(simulated: tuple[Any, Any], tmp_path: Any,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     """``omnisonar calibrate`` on a tracked run prints the NEES per candidate and the picked
-    beta (JSON), ``localize --beta`` uses it; bad input exits 2 naming the problem."""
+    beta (JSON), ``localize --beta`` uses it; bad input exits 2 naming the problem.
+
+    On this run 100 and 200 stay below mean NEES 3, so ``calibrate`` warns and widens to 400
+    (issue 14 item 4); before widening it silently returned 200, the nearest."""
 
     from mapping.files import write_map, write_run
     from service.cli import main
@@ -50,9 +53,12 @@ def test_cli_calibrate_and_localize_with_beta(simulated: tuple[Any, Any], tmp_pa
     rc = main(["calibrate", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
                "--betas", "100,200", "--particles", "300", "--seeds", "1", "--json"])
     assert rc == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["betas"] == [100.0, 200.0] and len(out["nees_mean"]) == 2
-    assert 100.0 <= out["beta"] <= 200.0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert out["betas"] == [100.0, 200.0, 400.0] and len(out["nees_mean"]) == 3
+    assert out["widened"] == [400.0] and out["bracketed"] is True
+    assert 200.0 <= out["beta"] <= 400.0
+    assert "no candidate beta brackets" in captured.err and "tried beta 400" in captured.err
     rc = main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
                "--init", "tracked", "--particles", "500", "--beta", str(out["beta"]),
                "--json"])
@@ -68,6 +74,60 @@ def test_cli_calibrate_and_localize_with_beta(simulated: tuple[Any, Any], tmp_pa
     assert main(["calibrate", "--map", str(tmp_path / "G.npz"),
                  str(tmp_path / "untracked.npz")]) == 2
     assert "untracked.npz" in capsys.readouterr().err
+
+
+def test_cli_calibrate_warns_and_widens_when_no_candidate_brackets(
+        tmp_path: Any, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 14 item 4: with a fake filter whose mean NEES is 3 beta / 5000 (the real search
+    of ``localization.calibration`` over it), the default candidates 50..400 never reach 3:
+    ``calibrate`` warns on stderr naming what it tried, doubles up to 6400 and picks the
+    crossing 5000; ``--widen 2`` stops at 1600 and says it picked the nearest, unbracketed;
+    a bracketing range warns nothing; ``--widen -1`` exits 2."""
+    import localization.calibration as calibration
+    from mapping.files import write_map, write_run
+    from service.cli import main
+    from tests.service.helpers import raster_map
+
+    def fake_calibrate(tables: Any, runs: Any, betas: Any, config: Any, rng: Any,
+                       n_seeds: int = 1, max_widen: int = 0) -> Any:
+        assert len(runs) == 1 and n_seeds == 1
+        return calibration.search_beta(lambda b: (3.0 * b / 5000.0, 0), betas,
+                                       max_widen=max_widen)
+
+    monkeypatch.setattr(calibration, "calibrate_beta", fake_calibrate)
+    map_path = write_map(tmp_path / "G.npz", raster_map())
+    run_path = write_run(tmp_path / "run.npz", _small_run(None))
+    base = ["calibrate", "--map", str(map_path), str(run_path), "--seeds", "1"]
+
+    assert main([*base, "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert out["widened"] == [800.0, 1600.0, 3200.0, 6400.0] and out["bracketed"] is True
+    assert out["betas"] == [50.0, 100.0, 200.0, 400.0, 800.0, 1600.0, 3200.0, 6400.0]
+    assert out["beta"] == pytest.approx(5000.0)
+    err = " ".join(captured.err.split())
+    assert "warning: no candidate beta brackets the target mean NEES 3" in err
+    assert "50: 0.03" in err and "400: 0.24" in err        # the given candidates' NEES
+    assert "tried beta 800: 0.48, 1600: 0.96, 3200: 1.92, 6400: 3.84" in err
+    assert "crossing lies at beta 5000.0" in err
+
+    assert main([*base, "--widen", "2"]) == 0
+    captured = capsys.readouterr()
+    err = " ".join(captured.err.split())
+    assert "tried beta 800: 0.48, 1600: 0.96" in err and "3200" not in err
+    assert "stopped at the cap of 2" in err and "Picked the nearest, beta = 1600.0" in err
+    assert " 1600.0 " in captured.out and "the nearest candidate" in captured.out
+
+    assert main([*base, "--widen", "0"]) == 0
+    assert "--widen 0 turns widening off" in capsys.readouterr().err
+
+    assert main([*base, "--betas", "1000,10000"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and "mean NEES 3 = honest covariance" in captured.out
+
+    assert main([*base, "--widen", "-1"]) == 2
+    assert "--widen" in capsys.readouterr().err
 
 
 # ---- build-map / evaluate-map (issue 13) ------------------------------------------------------
