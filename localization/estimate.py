@@ -211,6 +211,9 @@ class TrackMetrics:
         Share of all blocks with position error <= ``tol_m``.
     nees_mean : float
         Mean NEES (3 dof; ~3 when the covariance is honest) after convergence.
+    position_rmse_all_m, heading_rmse_all_rad : float
+        RMSE over every block with truth, converged or not (NaN only without truth): a run
+        that never converges still has a number, and a late convergence shows in it.
     """
 
     n_blocks: int
@@ -219,6 +222,8 @@ class TrackMetrics:
     heading_rmse_rad: float
     share_within_tol: float
     nees_mean: float
+    position_rmse_all_m: float
+    heading_rmse_all_rad: float
 
 
 def track_metrics(poses: FloatArray, covs: FloatArray, truth: FloatArray,
@@ -232,16 +237,45 @@ def track_metrics(poses: FloatArray, covs: FloatArray, truth: FloatArray,
     bad = np.flatnonzero(~good)
     start = 0 if bad.size == 0 else int(bad[-1]) + 1
     n = int(truth.shape[0])
+    rmse_all = _rmse(err)
     if start >= n:
         return TrackMetrics(n, None, math.nan, math.nan,
-                            float(np.mean(err[:, 0] <= tol_m)) if n else math.nan, math.nan)
-    tail = err[start:]
+                            float(np.mean(err[:, 0] <= tol_m)) if n else math.nan, math.nan,
+                            *rmse_all)
     nees_vals = [nees(p, c, t) for p, c, t in zip(poses[start:], covs[start:], truth[start:],
                                                   strict=True)]
+    position_rmse_m, heading_rmse_rad = _rmse(err[start:])
     return TrackMetrics(
         n_blocks=n, blocks_to_converge=start,
-        position_rmse_m=float(np.sqrt(np.mean(tail[:, 0] ** 2))),
-        heading_rmse_rad=float(np.sqrt(np.mean(tail[:, 1] ** 2))),
+        position_rmse_m=position_rmse_m, heading_rmse_rad=heading_rmse_rad,
         share_within_tol=float(np.mean(err[:, 0] <= tol_m)),
         nees_mean=float(np.mean(nees_vals)),
+        position_rmse_all_m=rmse_all[0], heading_rmse_all_rad=rmse_all[1],
     )
+
+
+def _rmse(err: FloatArray) -> tuple[float, float]:
+    """Root mean square of the (position m, heading rad) error rows (n, 2); NaN when n = 0."""
+    if err.shape[0] == 0:
+        return math.nan, math.nan
+    rms = np.sqrt(np.mean(err**2, axis=0))
+    return float(rms[0]), float(rms[1])
+
+
+TRACK_STATUSES = ("converged", "uncertain", "lost")
+"""The per-block status of a track (CLI track CSV), most confident first."""
+
+
+def track_status(estimate: PoseEstimate) -> str:
+    """Interim status of one block: ``"converged"`` when ``estimate.converged``, else
+    ``"uncertain"``.
+
+    ``"lost"`` (see :data:`TRACK_STATUSES`) is never returned yet: nothing a
+    :class:`PoseEstimate` carries says that the block's likelihood collapsed. Its
+    ``likelihood_scale`` < 1 says the update was sharp, not that the fit was poor (it also
+    fires while a global start converges), and the augmented-MCL averages ``w_slow`` /
+    ``w_fast`` stay inside the particle filter (the grid filter has none). Issue 14 item 2
+    replaces this rule by a calibrated per-block statistic of how well the estimate explains
+    the block; until then ``converged`` can be confidently wrong.
+    """
+    return "converged" if estimate.converged else "uncertain"

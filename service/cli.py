@@ -28,7 +28,7 @@ from service.commands.runs import (
 from service.commands.serve import add_demo, add_demo_api, add_serve
 from service.commands.simulate import add_simulate
 
-__all__ = ["build_parser", "main"]
+__all__ = ["DefaultsHelpFormatter", "build_parser", "main"]
 
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
@@ -49,8 +49,20 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
 ]
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends ``(default: X)`` to every option's help, except where the help places
+    ``%(default)s`` itself or the default is None or False (an unset option, an off flag:
+    their help says what leaving them out means)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The ``omnisonar`` argument parser with every subcommand registered."""
+    """The ``omnisonar`` argument parser with every subcommand registered; every
+    subcommand's help shows the defaults (:class:`DefaultsHelpFormatter`)."""
     parser = argparse.ArgumentParser(
         prog="omnisonar",
         description="Doppler direction-of-arrival sonar: simulate, map, localize, serve.",
@@ -58,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for add in _COMMANDS:
         add(sub)
+    for subparser in sub.choices.values():
+        subparser.formatter_class = DefaultsHelpFormatter
     return parser
 
 

@@ -8,6 +8,7 @@ no computation here.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -18,6 +19,7 @@ from mapping.files import atomic_savez, atomic_write
 
 if TYPE_CHECKING:
     from localization.calibration import BetaCalibration
+    from localization.estimate import PoseEstimate
 
 
 # ---- localize (issue 6) ---------------------------------------------------------------
@@ -27,24 +29,24 @@ def add_localize(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", required=True, metavar="MAP.npz",
                    help="map file (omnisonar-map-2; omnisonar-map-1 is read too)")
     p.add_argument("--filter", choices=("pf", "grid"), default="pf",
-                   help="particle filter (default) or exact grid filter")
+                   help="pf: particle filter; grid: exact grid filter")
     p.add_argument("--particles", type=int, default=2000, help="particle count (pf)")
     p.add_argument("--init", choices=("global", "tracked"), default="global",
-                   help="global (uniform over free space) or the run's first tracked pose")
+                   help="global: uniform over the free space; tracked: the run's first tracked "
+                        "pose (10 cm / 10 deg)")
     p.add_argument("--model", choices=("correlation", "range"), default="correlation",
                    help="sensor model")
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
     p.add_argument("--beta", type=float, default=None,
                    help="sensor sharpness (default 200; `omnisonar calibrate` picks one per map)")
-    p.add_argument("--out", help="write the track as CSV")
+    p.add_argument("--out", metavar="TRACK.csv",
+                   help="write the track as CSV: pose, full covariance, status per block")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
     p.set_defaults(func=_cmd_localize)
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
     import dataclasses
-    import json
-    import math
 
     from localization.estimate import default_start_cov, track_metrics
     from localization.grid_filter import GridFilter
@@ -91,8 +93,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
                                        run.t_s, run.config.block_s)):
         sd = np.sqrt(np.clip(np.diag(est.cov), 0.0, None))
         err = pose_error(est.pose, run.pose[k]) if tracked[k] else (math.nan, math.nan)
-        rows.append([k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
-                     int(est.direction_observable), *err])
+        rows.append(_track_row(k, est, err))
         poses.append(est.pose)
         covs.append(est.cov)
         if not args.json:
@@ -107,22 +108,85 @@ def _cmd_localize(args: argparse.Namespace) -> int:
         m = track_metrics(np.array(poses), np.array(covs), run.pose)
         summary.update(dataclasses.asdict(m))
         summary["heading_rmse_deg"] = math.degrees(m.heading_rmse_rad)
+        summary["heading_rmse_all_deg"] = math.degrees(m.heading_rmse_all_rad)
     if args.out:
-        header = ("block,x_m,y_m,yaw_rad,std_x_m,std_y_m,std_yaw_rad,ess,converged,n_modes,"
-                  "direction_observable,err_m,err_rad")
-        atomic_write(Path(args.out), lambda fh: np.savetxt(
-            fh, np.array(rows, dtype=np.float64), delimiter=",", header=header, comments="",
-            fmt="%.6g"), private=False)
+        atomic_write(Path(args.out), lambda fh: fh.write(_track_csv(rows).encode()),
+                     private=False)
     if args.json:
-        print(json.dumps(summary, indent=2, default=float))
+        print(strict_json(summary, indent=2))
     elif tracked.any():
-        print(f"blocks to converge: {summary['blocks_to_converge']}; after convergence "
-              f"position RMSE {float(summary['position_rmse_m']) * 100:.1f} cm, heading RMSE "
-              f"{float(summary['heading_rmse_deg']):.1f} deg; within 10 cm: "
-              f"{float(summary['share_within_tol']) * 100:.0f} % of blocks")
+        print(_metrics_text(summary))
     if args.out:
         print(f"wrote {args.out}", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+TRACK_CSV_COLUMNS = (
+    "block", "x_m", "y_m", "yaw_rad", "std_x_m", "std_y_m", "std_yaw_rad", "ess", "converged",
+    "n_modes", "direction_observable", "err_m", "err_rad",
+    "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "status",
+)
+"""Columns of the ``localize --out`` track CSV (documented in docs/formats.md)."""
+
+
+def _track_row(k: int, est: PoseEstimate, err: tuple[float, float]) -> list[Any]:
+    """One row of the track CSV (:data:`TRACK_CSV_COLUMNS`): the best mode's pose, standard
+    deviations and upper-triangle covariance, the filter's flags, the error and the status."""
+    from localization.estimate import track_status
+
+    sd = np.sqrt(np.clip(np.diag(est.cov), 0.0, None))
+    upper = est.cov[np.triu_indices(3)]          # xx, xy, xyaw, yy, yyaw, yawyaw
+    return [k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
+            int(est.direction_observable), *err, *upper, track_status(est)]
+
+
+def _track_csv(rows: list[list[Any]]) -> str:
+    """The track CSV text: a header of :data:`TRACK_CSV_COLUMNS`, floats as ``%.6g``."""
+    lines = [",".join(TRACK_CSV_COLUMNS)]
+    for row in rows:
+        lines.append(",".join(v if isinstance(v, str) else str(v) if isinstance(v, int)
+                              else f"{float(v):.6g}" for v in row))
+    return "\n".join(lines) + "\n"
+
+
+def _metrics_text(summary: dict[str, Any]) -> str:
+    """The closing line of ``localize`` on a tracked run: RMSE after convergence (when it
+    converged) and over all blocks, and the share within 10 cm."""
+    def cm_deg(position_m: float, heading_deg: float) -> str:
+        return f"position RMSE {position_m * 100:.1f} cm, heading RMSE {heading_deg:.1f} deg"
+
+    if summary["blocks_to_converge"] is None:
+        after = "never converged (no block from which the error stays within 10 cm / 10 deg)"
+    else:
+        after = (f"blocks to converge: {summary['blocks_to_converge']}; after convergence "
+                 + cm_deg(summary["position_rmse_m"], summary["heading_rmse_deg"]))
+    return (f"{after}; over all blocks "
+            f"{cm_deg(summary['position_rmse_all_m'], summary['heading_rmse_all_deg'])}; "
+            f"within 10 cm: {summary['share_within_tol'] * 100:.0f} % of blocks")
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, +-inf) replaced by None, recursively
+    through dicts, lists and tuples; numpy scalars and arrays become Python ones."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [json_safe(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def strict_json(value: Any, indent: int | None = None) -> str:
+    """Strict JSON of ``value`` (RFC 8259: no NaN or Infinity): non-finite floats become null
+    (:func:`json_safe`) and ``allow_nan=False`` raises if one ever slips through."""
+    import json
+
+    return json.dumps(json_safe(value), indent=indent, allow_nan=False)
 
 
 # ---- calibrate (issue 6: the sensor sharpness that makes the covariance honest) -----------
@@ -134,13 +198,13 @@ def add_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", required=True, metavar="MAP.npz",
                    help="map file (omnisonar-map-2; omnisonar-map-1 is read too)")
     p.add_argument("--betas", default="50,100,200,400",
-                   help="comma-separated candidates (default 50,100,200,400)")
+                   help="comma-separated candidates")
     p.add_argument("--particles", type=int, default=1000, help="particle count per filter run")
     p.add_argument("--seeds", type=int, default=2, help="filter runs per run and candidate")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--widen", type=int, default=4, metavar="N",
                    help="when no candidate brackets mean NEES 3, try up to N more beyond the "
-                        "ends, doubling the largest or halving the smallest; 0: off (default 4)")
+                        "ends, doubling the largest or halving the smallest; 0: off")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_cmd_calibrate)
 
@@ -175,9 +239,6 @@ def _calibration_warning(cal: BetaCalibration, max_widen: int,
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    import json
-    import math
-
     from localization.calibration import CalibrationRun, calibrate_beta
     from localization.particle_filter import FilterConfig
     from localization.sensor import SensorConfig, build_tables
@@ -203,10 +264,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if warning is not None:
         print(warning, file=sys.stderr)
     if args.json:
-        nees = [q if math.isfinite(q) else None for q in cal.nees_mean]
-        print(json.dumps({"beta": cal.beta, "betas": list(cal.betas), "nees_mean": nees,
-                          "lost_runs": list(cal.lost_runs), "bracketed": cal.bracketed,
-                          "widened": list(cal.widened)}))
+        print(strict_json({"beta": cal.beta, "betas": list(cal.betas),
+                           "nees_mean": list(cal.nees_mean), "lost_runs": list(cal.lost_runs),
+                           "bracketed": cal.bracketed, "widened": list(cal.widened)}))
         return 0
     print("   beta  mean NEES  lost runs")
     for b, q, lost in zip(cal.betas, cal.nees_mean, cal.lost_runs, strict=True):
@@ -227,8 +287,9 @@ def add_posterior(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--walkers", type=int, default=32, help="walkers per mode (>= 6)")
     p.add_argument("--steps", type=int, default=1000, help="first batch of steps per mode")
     p.add_argument("--max-steps", type=int, default=20000, help="cap while reaching 50 tau")
-    p.add_argument("--model", choices=("correlation", "range"), default="correlation")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--model", choices=("correlation", "range"), default="correlation",
+                   help="sensor model")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--out", required=True, help="output .npz (samples and diagnostics)")
     p.add_argument("--png", help="corner plot PNG")
     p.set_defaults(func=_cmd_posterior)

@@ -17,9 +17,9 @@ from mapping.signal import SonarConfig
 def add_serve(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="run the localization HTTP service (uvicorn)")
     p.add_argument("--maps", help="maps directory (default: $OMNISONAR_MAPS_DIR or var/maps)")
-    p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8000)
-    p.add_argument("--log-level", default="info")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=8000, help="TCP port")
+    p.add_argument("--log-level", default="info", help="uvicorn log level")
     p.set_defaults(func=_cmd_serve)
 
 
@@ -34,7 +34,7 @@ def add_demo_api(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo-api", help="start the service, stream a held-out run, stop it")
     p.add_argument("--out", default="out/demo-api", help="work directory (maps, sessions)")
     p.add_argument("--blocks", type=int, default=None, help="stream only the first N blocks")
-    p.add_argument("--particles", type=int, default=2000)
+    p.add_argument("--particles", type=int, default=2000, help="particles")
     p.add_argument("--global", dest="global_init", action="store_true",
                    help="start the filter globally instead of from the first true pose")
     p.set_defaults(func=_cmd_demo_api)
@@ -53,10 +53,10 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
         help="the main job end to end: a heat map next to one wall, then the paper scene's "
         "default map and a held-out run localized through the HTTP API",
     )
-    p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    p.add_argument("--out", default="out/demo", help="output directory")
     p.add_argument("--heatmap-only", action="store_true", help="stop after the heat-map part")
     p.add_argument("--blocks", type=int, help="stream only the first N blocks of the run")
-    p.add_argument("--particles", type=int, default=2000, help="particles (default 2000)")
+    p.add_argument("--particles", type=int, default=2000, help="particles")
     p.add_argument("--global", dest="global_init", action="store_true",
                    help="start the filter globally instead of from the first true pose")
     p.set_defaults(func=_cmd_demo)

@@ -22,19 +22,19 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a run of the sonar along a path in a scene")
     p.add_argument("--scene", required=True, help="builtin:NAME or a scene JSON file")
     p.add_argument("--path", required=True, help="built-in path NAME (or builtin:NAME)")
-    p.add_argument("--engine", default="ism", help="forward model (default ism: image sources)")
+    p.add_argument("--engine", default="ism", help="forward model: ism (image sources) or fdtd")
     length = p.add_mutually_exclusive_group()
     length.add_argument("--blocks", type=int, help="number of 1.023 s blocks")
     length.add_argument("--duration", type=float, help="seconds to simulate (whole blocks)")
     p.add_argument("--snr-db", type=float, help="add white noise at this per-sample SNR")
-    p.add_argument("--seed", type=int, default=0, help="random seed (noise, tail; default 0)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (noise, tail)")
     p.add_argument("--order", type=int, help="reflection order (default: automatic)")
     p.add_argument("--spreading", choices=["3d", "2d"], default="3d",
-                   help="3d: 1/r point source (default); 2d: line source, as a 2-D FDTD")
+                   help="3d: 1/r point source; 2d: line source, as a 2-D FDTD")
     p.add_argument("--rt60", type=float, help="add a diffuse reverberant tail (seconds)")
     p.add_argument("--odometry-noise", type=float, default=0.0,
                    help="std of the recorded speed noise in m/s")
-    p.add_argument("--speed", type=float, default=0.1, help="path speed in m/s (default 0.1)")
+    p.add_argument("--speed", type=float, default=0.1, help="path speed in m/s")
     p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
     p.add_argument("--out", required=True, help="output run file (.npz)")
     fd = p.add_argument_group("--engine fdtd (issue 4)")
@@ -42,7 +42,7 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
     fd.add_argument("--time-step", type=float, default=1 / 120_000, help="FDTD dt in s")
     fd.add_argument("--float64", action="store_true", help="float64 fields (default float32)")
     fd.add_argument("--checkpoint-minutes", type=float, default=5.0,
-                    help="write OUT.checkpoint.npz this often (default 5)")
+                    help="write OUT.checkpoint.npz this often")
     fd.add_argument("--resume", action="store_true", help="continue from OUT.checkpoint.npz")
     p.set_defaults(func=_cmd_simulate)
 

@@ -70,3 +70,44 @@ def test_summarize_converged_flag() -> None:
                     updated=True, model="correlation")
     assert not est.converged
     assert len(est.modes) == 2
+
+
+def test_track_metrics_rmse_all_blocks_by_hand() -> None:
+    """Issue 14 item 4: RMSE over every block with truth beside the RMSE after convergence.
+    Errors (0.5 m, 0.2 rad), (0.03 m, 0.01 rad), (0.04 m, -0.02 rad), then a block without
+    truth: converged from block 1; after it sqrt((0.03^2 + 0.04^2) / 2) m and
+    sqrt((0.01^2 + 0.02^2) / 2) rad, over all three sqrt((0.5^2 + 0.03^2 + 0.04^2) / 3) m and
+    sqrt((0.2^2 + 0.01^2 + 0.02^2) / 3) rad."""
+    from localization.estimate import track_metrics
+
+    truth = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.5], [2.0, 0.0, 1.0],
+                      [np.nan, np.nan, np.nan]])
+    poses = truth + np.array([[0.3, 0.4, 0.2], [0.0, 0.03, 0.01], [-0.04, 0.0, -0.02],
+                              [0.0, 0.0, 0.0]])
+    poses[3] = [3.0, 0.0, 0.0]
+    covs = np.broadcast_to(np.eye(3) * 0.01, (4, 3, 3))
+    m = track_metrics(poses, covs, truth)
+    assert m.n_blocks == 3 and m.blocks_to_converge == 1
+    assert m.position_rmse_m == pytest.approx(math.sqrt((0.03**2 + 0.04**2) / 2))
+    assert m.heading_rmse_rad == pytest.approx(math.sqrt((0.01**2 + 0.02**2) / 2))
+    assert m.position_rmse_all_m == pytest.approx(math.sqrt((0.5**2 + 0.03**2 + 0.04**2) / 3))
+    assert m.heading_rmse_all_rad == pytest.approx(math.sqrt((0.2**2 + 0.01**2 + 0.02**2) / 3))
+
+    never = track_metrics(poses[:1], covs[:1], truth[:1])       # the one block is 0.5 m off
+    assert never.blocks_to_converge is None and math.isnan(never.position_rmse_m)
+    assert never.position_rmse_all_m == pytest.approx(0.5)
+    assert never.heading_rmse_all_rad == pytest.approx(0.2)
+
+
+def test_track_status_interim_rule() -> None:
+    """``converged`` -> "converged", else "uncertain"; "lost" waits for issue 14 item 2."""
+    from localization.estimate import TRACK_STATUSES, track_status
+
+    poses, w = _two_clusters(0.02)
+    one = summarize(poses, np.log(w), ClusterConfig(), ess=10.0, direction_observable=True,
+                    updated=True, model="correlation")
+    poses, w = _two_clusters(0.4)
+    two = summarize(poses, np.log(w), ClusterConfig(), ess=10.0, direction_observable=True,
+                    updated=True, model="correlation")
+    assert (track_status(one), track_status(two)) == ("converged", "uncertain")
+    assert TRACK_STATUSES == ("converged", "uncertain", "lost")

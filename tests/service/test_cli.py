@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 from typing import Any
 
 import numpy as np
@@ -29,8 +30,9 @@ def test_cli_localize_tracked(simulated: tuple[Any, Any], tmp_path: Any,
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["blocks_to_converge"] == 0 and out["position_rmse_m"] <= 0.03
-    rows = np.loadtxt(tmp_path / "track.csv", delimiter=",", skiprows=1)
-    assert rows.shape == (held.n_blocks, 13)
+    rows = np.loadtxt(tmp_path / "track.csv", delimiter=",", skiprows=1,
+                      converters={19: lambda s: 1.0 if s == "converged" else 0.0})
+    assert rows.shape == (held.n_blocks, 20)
     assert main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
                  "--particles", "0"]) == 2
 
@@ -130,6 +132,70 @@ def test_cli_calibrate_warns_and_widens_when_no_candidate_brackets(
     assert "--widen" in capsys.readouterr().err
 
 
+# ---- localize: strict JSON, RMSE over all blocks, the track CSV (issue 14 item 4) ---------
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"not strict JSON: {name}")
+
+
+def test_localize_never_converged_prints_strict_json_and_full_track_csv(
+        tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    """Regression: a run that never converges printed ``NaN`` in ``--json`` (invalid JSON).
+    The run's truth lies 100 m from the map, so no block is ever within 10 cm: the fields
+    after convergence are null, the RMSE over all blocks is a number (~141 m). The track CSV
+    carries the full covariance and a status per block; the text says "never converged"."""
+    from mapping.files import write_map, write_run
+    from service.cli import main
+    from tests.service.helpers import raster_map
+
+    run = _small_run(None)
+    far = dataclasses.replace(run, pose=run.pose + np.array([100.0, 100.0, 0.0]))
+    map_path = write_map(tmp_path / "G.npz", raster_map())
+    run_path = write_run(tmp_path / "far.npz", far)
+    csv_path = tmp_path / "out" / "track.csv"
+    base = ["localize", "--map", str(map_path), str(run_path), "--particles", "300"]
+    assert main([*base, "--json", "--out", str(csv_path)]) == 0
+    out = json.loads(capsys.readouterr().out, parse_constant=_reject_constant)
+    assert out["blocks_to_converge"] is None
+    for key in ("position_rmse_m", "heading_rmse_rad", "heading_rmse_deg", "nees_mean"):
+        assert out[key] is None, key
+    assert out["position_rmse_all_m"] == pytest.approx(100.0 * math.sqrt(2.0), abs=5.0)
+    assert math.isfinite(out["heading_rmse_all_rad"]) and math.isfinite(
+        out["heading_rmse_all_deg"])
+
+    lines = csv_path.read_text().splitlines()
+    assert lines[0] == ("block,x_m,y_m,yaw_rad,std_x_m,std_y_m,std_yaw_rad,ess,converged,"
+                        "n_modes,direction_observable,err_m,err_rad,cov_xx,cov_xy,cov_xyaw,"
+                        "cov_yy,cov_yyaw,cov_yawyaw,status")
+    assert len(lines) == 1 + far.n_blocks and not list(tmp_path.joinpath("out").glob(".*"))
+    header = lines[0].split(",")
+    for line in lines[1:]:
+        row = dict(zip(header, line.split(","), strict=True))
+        cov = np.array([[row["cov_xx"], row["cov_xy"], row["cov_xyaw"]],
+                        [row["cov_xy"], row["cov_yy"], row["cov_yyaw"]],
+                        [row["cov_xyaw"], row["cov_yyaw"], row["cov_yawyaw"]]], dtype=float)
+        np.testing.assert_allclose(np.sqrt(np.diag(cov)),
+                                   [float(row["std_x_m"]), float(row["std_y_m"]),
+                                    float(row["std_yaw_rad"])], rtol=1e-4)
+        assert np.linalg.eigvalsh(cov).min() >= -1e-12
+        assert row["status"] == ("converged" if row["converged"] == "1" else "uncertain")
+        assert float(row["err_m"]) > 100.0
+
+    assert main(base) == 0
+    text = capsys.readouterr().out
+    assert "never converged" in text and "over all blocks position RMSE" in text
+    assert "nan" not in text.splitlines()[-1]
+
+
+def test_strict_json_nulls_every_non_finite_float() -> None:
+    from service.commands.localize import strict_json
+
+    value = {"a": math.nan, "b": [1.0, math.inf, (np.float64(-math.inf), np.int64(3))],
+             "c": {"d": np.array([np.nan, 2.0]), "e": np.bool_(True), "f": None, "g": "NaN"}}
+    assert json.loads(strict_json(value), parse_constant=_reject_constant) == {
+        "a": None, "b": [1.0, None, [None, 3]],
+        "c": {"d": [None, 2.0], "e": True, "f": None, "g": "NaN"}}
+
+
 # ---- build-map / evaluate-map (issue 13) ------------------------------------------------------
 def _small_run(scene: str | None) -> Any:
     from mapping.signal import SonarConfig
@@ -213,3 +279,27 @@ def test_build_and_evaluate_map_help_show_defaults() -> None:
     assert "(default: 0.2)" in help_eval and "(default: 0.8)" in help_eval
     args = parser.parse_args(["build-map", "r.npz", "--out", "m.npz"])
     assert args.method == "walls" and args.geojson is None
+
+
+def test_every_subcommand_help_shows_its_defaults() -> None:
+    """Issue 14 item 4: every option of every subcommand whose default is set (not None, not
+    SUPPRESS, not False) says so in its rendered help, and says it once."""
+    from service.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    missing, twice = [], []
+    for name, subparser in sub.choices.items():
+        formatter = subparser._get_formatter()
+        for action in subparser._actions:
+            unset = action.default is None or action.default is False  # not 0 == False
+            if unset or action.default == argparse.SUPPRESS or not action.option_strings:
+                continue
+            shown = formatter._expand_help(action) if action.help else ""
+            if "default" not in shown:
+                missing.append(f"{name} {action.option_strings[0]}")
+            elif shown.count("default") > 1:
+                twice.append(f"{name} {action.option_strings[0]}: {shown}")
+    assert missing == [] and twice == []
+    text = " ".join(sub.choices["localize"].format_help().split())
+    assert "(default: global)" in text and "(default: 2000)" in text
