@@ -76,7 +76,7 @@ def scene_data(scene: str) -> tuple[WallMap, dict[str, Run]]:
             cli(["simulate", "--scene", f"builtin:{scene}", *args, *common, "--out", str(out)])
     gmap = CACHE / f"{scene}-G.npz"
     if not gmap.exists():
-        cli(["build-map", str(CACHE / f"{scene}-map.npz"), "--out", str(gmap)])
+        cli(["build-map", str(CACHE / f"{scene}-map.npz"), "--out", str(gmap), "--method", "paper"])
     return read_map(gmap), {k: read_run(CACHE / f"{scene}-{k}.npz") for k in ("curve",
                                                                            "straight")}
 
