@@ -10,7 +10,6 @@ reported covariance), stop the service.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ from localization.estimate import nees
 from mapping.angles import pose_error
 from service.builds import simulate_default_run
 from service.client_example import pose_of, stream_run
+from service.jsonout import strict_json
 from service.server import ServerProcess
 
 HELD_OUT_PATH = "paper-a"
@@ -103,8 +103,8 @@ def run_demo(work_dir: Path, n_blocks: int | None = None, particles: int = 2000,
                          "nees": nees(pose_of(est), np.asarray(est["covariance"]),
                                       run.pose[k])})
     summary = {**summarize(rows), "beta": beta}
-    (work_dir / "track.json").write_text(json.dumps({"summary": summary, "track": rows}))
-    print(json.dumps(summary, indent=1))
+    (work_dir / "track.json").write_text(strict_json({"summary": summary, "track": rows}))
+    print(strict_json(summary, indent=1))
     return summary
 
 

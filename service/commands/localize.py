@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mapping.files import atomic_savez, atomic_write
+from service.jsonout import strict_json
 
 if TYPE_CHECKING:
     from localization.calibration import BetaCalibration
@@ -163,30 +164,6 @@ def _metrics_text(summary: dict[str, Any]) -> str:
     return (f"{after}; over all blocks "
             f"{cm_deg(summary['position_rmse_all_m'], summary['heading_rmse_all_deg'])}; "
             f"within 10 cm: {summary['share_within_tol'] * 100:.0f} % of blocks")
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with every non-finite float (NaN, +-inf) replaced by None, recursively
-    through dicts, lists and tuples; numpy scalars and arrays become Python ones."""
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [json_safe(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
-    if isinstance(value, bool | np.bool_):
-        return bool(value)
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-def strict_json(value: Any, indent: int | None = None) -> str:
-    """Strict JSON of ``value`` (RFC 8259: no NaN or Infinity): non-finite floats become null
-    (:func:`json_safe`) and ``allow_nan=False`` raises if one ever slips through."""
-    import json
-
-    return json.dumps(json_safe(value), indent=indent, allow_nan=False)
 
 
 # ---- calibrate (issue 6: the sensor sharpness that makes the covariance honest) -----------

@@ -16,6 +16,7 @@ import numpy as np
 
 from mapping.files import atomic_savez
 from service.commands.runs import resolve_scene
+from service.jsonout import strict_json
 
 if TYPE_CHECKING:
     from mapping.quality import MapReport
@@ -183,7 +184,6 @@ def add_evaluate_map(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_evaluate_map(args: argparse.Namespace) -> int:
-    import json
 
     from mapping.files import read_map
     from mapping.quality import evaluate_map
@@ -198,8 +198,8 @@ def _cmd_evaluate_map(args: argparse.Namespace) -> int:
                           share=args.share, fraction_of_max=args.fraction_of_max,
                           p99_fractions=fractions)
     if args.json:
-        print(json.dumps({"map": str(args.map), "scene": args.scene, "method": wm.method,
-                          **report.to_dict()}, indent=2, allow_nan=False))
+        print(strict_json({"map": str(args.map), "scene": args.scene, "method": wm.method,
+                           **report.to_dict()}, indent=2))
         return 0
     for line in _report_lines(args, wm, report):
         print(line)

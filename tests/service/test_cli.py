@@ -187,7 +187,7 @@ def test_localize_never_converged_prints_strict_json_and_full_track_csv(
 
 
 def test_strict_json_nulls_every_non_finite_float() -> None:
-    from service.commands.localize import strict_json
+    from service.jsonout import strict_json
 
     value = {"a": math.nan, "b": [1.0, math.inf, (np.float64(-math.inf), np.int64(3))],
              "c": {"d": np.array([np.nan, 2.0]), "e": np.bool_(True), "f": None, "g": "NaN"}}
