@@ -13,6 +13,7 @@ $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[peer]' || echo "pyroomacoustics could not be installed: the peer tests (tests/mapping/simulate/ism/test_peer.py) will be skipped"
 	touch $(STAMP)
 
 lint: $(STAMP)
