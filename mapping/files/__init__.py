@@ -26,6 +26,7 @@ from mapping.files._atomic import (
     atomic_write,
     atomic_write_bytes,
 )
+from mapping.files._json import json_safe
 from mapping.files._map import (
     file_sha256,
     read_map,
@@ -46,6 +47,7 @@ from mapping.files._run import (
 )
 
 __all__ = [
+    "json_safe",
     "atomic_savez",
     "atomic_write",
     "atomic_write_bytes",

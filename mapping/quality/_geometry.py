@@ -4,7 +4,6 @@ samples the runs observed, cell centres."""
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -138,15 +137,5 @@ def _line_angle_deg(u: FloatArray, v: FloatArray) -> float:
     cross = abs(float(u[0] * v[1] - u[1] * v[0]))
     return float(np.degrees(np.arctan2(cross, abs(float(u @ v)))))
 
-
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
 
 

@@ -10,8 +10,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mapping.files import json_safe
 from mapping.quality._geometry import (
-    _json_safe,
     cell_centres,
     distance_to_walls,
     observed_wall_mask,
@@ -40,7 +40,7 @@ class RasterQuality:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON dictionary (NaN as null)."""
-        return _json_safe(asdict(self))
+        return json_safe(asdict(self))
 
 
 def evaluate_raster(wallmap: WallMap, true_segments: FloatArray, fraction: float = 0.2,
@@ -89,7 +89,7 @@ class MapReport:
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON dictionary (NaN as null)."""
         return {"walls": self.walls.to_dict(), "raster": self.raster.to_dict(),
-                "fraction_of_p99": _json_safe(self.fraction_of_p99.to_dict())}
+                "fraction_of_p99": json_safe(self.fraction_of_p99.to_dict())}
 
 
 def evaluate_map(wallmap: WallMap, true_segments: FloatArray, observed: BoolArray | None = None,

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mapping.files import json_safe
 from mapping.quality._geometry import (
     _check_segments,
-    _json_safe,
     _line_angle_deg,
     _segment_distances,
     distance_to_walls,
@@ -63,7 +63,7 @@ class WallQuality:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON dictionary (NaN as null)."""
-        return _json_safe(asdict(self))
+        return json_safe(asdict(self))
 
 
 

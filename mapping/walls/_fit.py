@@ -36,7 +36,7 @@ from mapping.walls._lines import (
     specular_points,
     vote,
 )
-from mapping.walls._peaks import PeakObservations, PeakParams
+from mapping.walls._peaks import PeakObservations, PeakParams, check_fields
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -123,9 +123,7 @@ class WallFitParams:
             ("heard_share", 0 <= self.heard_share <= 1),
             ("corner_reach_m", 0 <= self.corner_reach_m <= 20),
         )
-        for name, ok in checks:
-            if not ok:
-                raise ValueError(f"WallFitParams.{name} out of range: {getattr(self, name)!r}")
+        check_fields(self, checks)
 
 
 @dataclass(frozen=True)

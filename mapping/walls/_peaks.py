@@ -23,6 +23,14 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
+def check_fields(record: object, checks: tuple[tuple[str, bool], ...]) -> None:
+    """``ValueError`` naming the first field of a parameter record whose check failed."""
+    for name, ok in checks:
+        if not ok:
+            raise ValueError(f"{type(record).__name__}.{name} out of range: "
+                             f"{getattr(record, name)!r}")
+
+
 @dataclass(frozen=True)
 class PeakParams:
     """How echoes are read off a heat map.
@@ -71,9 +79,7 @@ class PeakParams:
             ("max_peaks", 1 <= self.max_peaks <= 1000),
             ("min_speed_m_s", math.isfinite(self.min_speed_m_s) and self.min_speed_m_s >= 0),
         )
-        for name, ok in checks:
-            if not ok:
-                raise ValueError(f"PeakParams.{name} out of range: {getattr(self, name)!r}")
+        check_fields(self, checks)
 
 
 @dataclass(frozen=True)
