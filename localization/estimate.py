@@ -86,6 +86,17 @@ class PoseEstimate:
         Share of the block's log-likelihood the particle filter applied (1: all of it; less
         when the update was tempered to keep ``min_ess_fraction`` of the particles, see
         :func:`localization.particle_filter.temper_to_ess`).
+    status : {"converged", "uncertain", "lost"}
+        The honest status (see :data:`TRACK_STATUSES`): ``converged`` only when the set is
+        one compact mode, the pose is inside the map's coverage and (echo model) the block
+        is explained at the estimate as well as tracked runs explain it at the true pose;
+        ``lost`` when (echo model) consecutive blocks are not explained.
+    fit : float
+        Echo model: how well the estimate explains the block, the mean of the shares of
+        measured peaks explained and of expected echoes heard, in [0, 1] (NaN for the G
+        models and for a block without peaks).
+    covered : bool
+        Whether the estimate lies on a map cell with evidence (``WallMap.coverage``).
     """
 
     pose: FloatArray
@@ -99,6 +110,9 @@ class PoseEstimate:
     updated: bool
     model: str
     likelihood_scale: float = 1.0
+    status: str = "uncertain"
+    fit: float = math.nan
+    covered: bool = True
 
 
 

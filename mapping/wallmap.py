@@ -15,6 +15,7 @@ no walls (``walls_m`` of shape (0, 4)) and a coverage of every cell.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -212,3 +213,35 @@ def rasterize_walls(walls_m: FloatArray, x_m: FloatArray, y_m: FloatArray) -> Bo
         ok = (ix >= 0) & (ix < x.size) & (iy >= 0) & (iy < y.size)
         out[iy[ok], ix[ok]] = True
     return out
+
+
+def wallmap_from_walls(walls_m: FloatArray, strength: FloatArray | None = None,
+                       resolution_m: float = 0.05, margin_m: float = 1.0) -> WallMap:
+    """An ideal map of known walls (a scene's, a floor plan's): G = 1 on the rasterized walls,
+    the walls as the vector map, coverage everywhere.
+
+    Parameters
+    ----------
+    walls_m : ndarray, shape (n >= 1, 4)
+        Segments ``x0, y0, x1, y1``.
+    strength : ndarray (n,), optional
+        Reflection strength per wall (default 1).
+    resolution_m, margin_m : float
+        Cell size and the margin around the walls' bounding box.
+    """
+    walls = np.asarray(walls_m, dtype=np.float64).reshape(-1, 4)
+    if walls.shape[0] == 0 or not np.all(np.isfinite(walls)):
+        raise ValueError("walls_m must hold at least one finite segment (n, 4)")
+    if not (math.isfinite(resolution_m) and 0 < resolution_m <= 1):
+        raise ValueError(f"resolution_m must be in (0, 1] m, got {resolution_m!r}")
+    if not (math.isfinite(margin_m) and 0 <= margin_m <= 100):
+        raise ValueError(f"margin_m must be in [0, 100] m, got {margin_m!r}")
+    pts = walls.reshape(-1, 2)
+    lo = pts.min(axis=0) - margin_m
+    n = np.ceil((pts.max(axis=0) + margin_m - lo) / resolution_m).astype(int) + 1
+    x = lo[0] + resolution_m * np.arange(n[0])
+    y = lo[1] + resolution_m * np.arange(n[1])
+    G = rasterize_walls(walls, x, y).astype(np.float64)
+    s = np.ones(walls.shape[0]) if strength is None else np.asarray(strength, dtype=np.float64)
+    return WallMap(G=G, origin_m=(float(lo[0]), float(lo[1])), resolution_m=resolution_m,
+                   walls_m=walls, wall_strength=s)

@@ -63,6 +63,26 @@ class FilterConfig:
         KLD histogram bin size.
     n_min, n_max : int
         KLD count limits.
+    fit_threshold : float
+        Echo model: a block is *explained* when the fit at the estimate (mean of the shares
+        of measured peaks explained and of expected echoes heard, ``PoseEstimate.fit``) is
+        at least this. Calibrated on tracked runs: the 1st percentile of the fit at the
+        true pose (:func:`localization.calibration.calibrate_fit_threshold`).
+    lost_after : int
+        Echo model: this many unexplained blocks in a row make the status ``lost``; one
+        makes it ``uncertain``.
+    relocalize : bool
+        Echo model: on an unexplained block, replace a share of the particles by poses that
+        explain the block (:func:`localization.sensor.echo_proposals`, picked by
+        likelihood): ``reseed_fraction`` on the first, twice that once lost, all of them
+        after ``reseed_after`` unexplained blocks in a row (a global re-seed).
+    reseed_fraction : float
+        Share replaced on the first unexplained block.
+    reseed_after : int
+        Unexplained blocks in a row before a full re-seed.
+    proposal_candidates : int
+        Proposals scored per particle replaced (and per particle of a global start's first
+        block, of which half are proposals).
     motion : MotionNoise
     cluster : ClusterConfig
     """
@@ -85,6 +105,12 @@ class FilterConfig:
     kld_bin_rad: float = math.radians(10.0)
     n_min: int = 200
     n_max: int = 20000
+    fit_threshold: float = 0.55
+    lost_after: int = 2
+    relocalize: bool = True
+    reseed_fraction: float = 0.25
+    reseed_after: int = 4
+    proposal_candidates: int = 4
     motion: MotionNoise = field(default_factory=MotionNoise)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
 
@@ -112,6 +138,17 @@ class FilterConfig:
             raise ValueError(f"min_ess_fraction must be in [0, 1), got {self.min_ess_fraction}")
         if self.inject_candidates < 1:
             raise ValueError(f"inject_candidates must be >= 1, got {self.inject_candidates}")
+        if not 0 <= self.fit_threshold <= 1:
+            raise ValueError(f"fit_threshold must be in [0, 1], got {self.fit_threshold}")
+        if not 1 <= self.lost_after <= 100:
+            raise ValueError(f"lost_after must be in [1, 100], got {self.lost_after}")
+        if not 0 <= self.reseed_fraction <= 0.5:
+            raise ValueError(f"reseed_fraction must be in [0, 0.5], got {self.reseed_fraction}")
+        if not 1 <= self.reseed_after <= 1000:
+            raise ValueError(f"reseed_after must be in [1, 1000], got {self.reseed_after}")
+        if not 1 <= self.proposal_candidates <= 100:
+            raise ValueError(
+                f"proposal_candidates must be in [1, 100], got {self.proposal_candidates}")
         if not 1 <= self.n_min <= self.n_max:
             raise ValueError(f"need 1 <= n_min <= n_max, got {self.n_min}, {self.n_max}")
 

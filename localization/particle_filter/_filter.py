@@ -48,10 +48,13 @@ from localization.particle_filter._config import FilterConfig
 from localization.sensor import (
     Measurement,
     SensorTables,
+    echo_proposals,
+    explanation,
     log_likelihood,
     pose_log_likelihood,
     prepare_measurement,
     score_poses,
+    uniform_free_poses,
 )
 from mapping.angles import wrap_angle
 from mapping.heatmap import HeatMap
@@ -79,13 +82,8 @@ def init_tracked(pose: FloatArray, cov: FloatArray, n: int,
 
 def init_global(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:
     """``n`` poses uniform over the free cells of the map, headings uniform."""
-    iy, ix = np.nonzero(tables.free_mask)
-    pick = rng.integers(0, iy.size, size=n)
-    u = rng.random((n, 3))
-    out = np.empty((n, 3))
-    out[:, 0] = tables.origin_m[0] + (ix[pick] + u[:, 0] - 0.5) * tables.resolution_m
-    out[:, 1] = tables.origin_m[1] + (iy[pick] + u[:, 1] - 0.5) * tables.resolution_m
-    out[:, 2] = wrap_angle(-np.pi + 2 * np.pi * u[:, 2])
+    out = uniform_free_poses(tables, n, rng)
+    out[:, 2] = wrap_angle(out[:, 2])
     return out
 
 
@@ -190,6 +188,50 @@ def inject(poses: FloatArray, n_inject: int, tables: SensorTables,
     return out
 
 
+def propose(poses: FloatArray, n_replace: int, tables: SensorTables, measurement: Measurement,
+            candidates: int, rng: np.random.Generator) -> FloatArray:
+    """Replace ``n_replace`` random particles by poses that explain the block: ``candidates``
+    times as many :func:`~localization.sensor.echo_proposals` are scored and the replacements
+    drawn among them in proportion to their (floored) likelihood."""
+    n_replace = min(int(n_replace), poses.shape[0])
+    if n_replace <= 0:
+        return poses
+    out = poses.copy()
+    slots = rng.choice(poses.shape[0], size=n_replace, replace=False)
+    cand = echo_proposals(tables, measurement, candidates * n_replace, rng)
+    ll = pose_log_likelihood(tables, measurement, cand, floor=True)
+    ll = np.where(np.isfinite(ll), ll, -np.inf)
+    if not np.isfinite(ll).any():
+        out[slots] = init_global(tables, n_replace, rng)
+        return out
+    pick = resampling.systematic_resample(np.exp(ll - ll.max()), rng, n_replace)
+    out[slots] = cand[rng.permutation(pick)]
+    return out
+
+
+def block_fit(tables: SensorTables, measurement: Measurement, pose: FloatArray) -> float:
+    """Echo model: how well ``pose`` explains the block, the mean of the share of measured
+    peaks explained and the share of expected echoes heard (:func:`explanation`), in [0, 1]."""
+    ex = explanation(tables, measurement, np.asarray(pose, dtype=np.float64).reshape(1, 3))
+    return float(0.5 * (ex.explained[0] + ex.heard[0]))
+
+
+def block_status(converged: bool, covered: bool, misfits: int, lost_after: int,
+                 heard_any: bool = True) -> str:
+    """The honest status of one block.
+
+    ``lost`` after ``lost_after`` unexplained blocks in a row; ``uncertain`` after one, when
+    the set is not one compact mode, when the estimate is outside the map's coverage, or
+    when the block heard nothing (no evidence of where the robot is); ``converged``
+    otherwise.
+    """
+    if misfits >= lost_after:
+        return "lost"
+    if misfits > 0 or not converged or not covered or not heard_any:
+        return "uncertain"
+    return "converged"
+
+
 def kld_count(poses: FloatArray, config: FilterConfig) -> int:
     """Particles needed for KL error ``kld_epsilon`` at confidence ``1 - kld_delta``."""
     keys = np.stack([np.floor(poses[:, 0] / config.kld_bin_m),
@@ -227,6 +269,8 @@ class ParticleFilter:
         self.log_w_slow = -np.inf
         self.log_w_fast = -np.inf
         self.n_steps = 0
+        self.misfits = 0
+        self.fresh = False
         if pose is None:
             self.reset_global()
         else:
@@ -242,6 +286,8 @@ class ParticleFilter:
         self.log_w = np.full(n, -math.log(n))
         self.log_w_slow = self.log_w_fast = -np.inf
         self.converged = False
+        self.misfits = 0
+        self.fresh = True
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -249,6 +295,8 @@ class ParticleFilter:
         self.poses = init_tracked(pose, cov, n, self.rng)
         self.log_w = np.full(n, -math.log(n))
         self.log_w_slow = self.log_w_fast = -np.inf
+        self.misfits = 0
+        self.fresh = False
         c = np.asarray(cov, dtype=np.float64)
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -294,6 +342,11 @@ class ParticleFilter:
         log_w = self.log_w
         scale = 1.0
         slow, fast = self.log_w_slow, self.log_w_fast
+        echo = meas is not None and meas.model == "echo"
+        if echo and self.fresh and meas is not None and meas.n_peaks and cfg.relocalize:
+            # a global start's first block: half the set becomes poses explaining it
+            poses = propose(poses, poses.shape[0] // 2, self.tables, meas,
+                            cfg.proposal_candidates, self.rng)
         if meas is not None:
             z = None if self.converged else cfg.z_rand_unconverged
             log_w, log_avg, scale = weigh(log_w, poses, self.tables, meas,
@@ -311,11 +364,20 @@ class ParticleFilter:
             direction_observable=bool(meas is not None and meas.direction_observable),
             updated=meas is not None, model="none" if meas is None else meas.model,
             likelihood_scale=scale)
-        if meas is not None and ess < cfg.resample_ess_fraction * poses.shape[0]:
+        misfits, fit = self.misfits, math.nan
+        if echo and meas is not None and meas.n_peaks:
+            fit = block_fit(self.tables, meas, estimate.pose)
+            misfits = misfits + 1 if fit < cfg.fit_threshold else 0
+        covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
+        status = block_status(estimate.converged, covered, misfits, cfg.lost_after,
+                              meas is None or meas.n_peaks > 0 or not echo)
+        estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
+        reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
+        if meas is not None and (reseed or ess < cfg.resample_ess_fraction * poses.shape[0]):
             n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
-            if cfg.augmented and np.isfinite(slow) and np.isfinite(fast):
+            if cfg.augmented and not echo and np.isfinite(slow) and np.isfinite(fast):
                 gap = fast - slow + self.tables.config.beta * cfg.inject_threshold_rho
                 p_inject = max(0.0, 1.0 - math.exp(min(gap, 0.0)))
             p_inject = min(p_inject, cfg.max_inject_fraction)
@@ -323,11 +385,19 @@ class ParticleFilter:
             if n_inject:
                 poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
                                self.rng)
+            if reseed and meas is not None:
+                share = (1.0 if misfits >= cfg.reseed_after
+                         else min(2.0 * cfg.reseed_fraction, 1.0) if misfits >= cfg.lost_after
+                         else cfg.reseed_fraction)
+                poses = propose(poses, int(round(share * n_out)), self.tables, meas,
+                                cfg.proposal_candidates, self.rng)
         self.poses, self.log_w = poses, log_w
         self.log_w_slow, self.log_w_fast = slow, fast
         self.n_steps += 1
+        self.misfits = misfits
         if meas is not None:
-            self.converged = estimate.converged
+            self.converged = estimate.converged and misfits == 0
+            self.fresh = self.fresh and not (echo and meas.n_peaks)
         return estimate
 
     # -- checkpointing
@@ -341,6 +411,8 @@ class ParticleFilter:
             "log_w_slow_fast": np.array([self.log_w_slow, self.log_w_fast]),
             "n_steps": np.array(self.n_steps, dtype=np.int64),
             "converged": np.array(self.converged),
+            "misfits": np.array(self.misfits, dtype=np.int64),
+            "fresh": np.array(self.fresh),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -365,6 +437,8 @@ class ParticleFilter:
         pf.log_w_slow, pf.log_w_fast = (float(v) for v in state["log_w_slow_fast"])
         pf.n_steps = int(state["n_steps"])
         pf.converged = bool(state["converged"]) if "converged" in state else False
+        pf.misfits = int(state["misfits"]) if "misfits" in state else 0
+        pf.fresh = bool(state["fresh"]) if "fresh" in state else False
         return pf
 
 

@@ -3,9 +3,11 @@
 At a pose the map predicts what the sonar should hear by sampling G on a polar grid around it
 (the inverse of the paper's eqs. 2-4); the measured heat map (eq. 1), which only knows
 ``|angle|``, is unfolded onto the same grid with both mirror sides equal, and the score is the
-Pearson correlation ``rho`` of the two. Two models (`Model`): ``correlation`` and ``range``
+Pearson correlation ``rho`` of the two. Three models (`Model`): ``correlation`` and ``range``
 (range profile only; heading-free, used automatically when the robot is too slow for the
-Doppler bank). The likelihood is tempered and floored,
+Doppler bank) score against G; ``echo`` is the physical model on the map's walls (the
+forward model's echoes against the heat map's peaks, `explanation`), scored in the same
+units (``rho = 1 + ll / ECHO_NATS``). The likelihood is tempered and floored,
 ``log((1 - z_rand) exp(beta (rho - rho_best)) + z_rand)``.
 
 Entry points: `SensorConfig`; `build_tables` (`SensorTables`: lookup tables of one map) and
@@ -18,16 +20,18 @@ Notes
 -----
 Private modules: ``_config`` (`SensorConfig`), ``_tables`` (lookup tables, free space),
 ``_measurement`` (checking and preparing a measurement), ``_scoring`` (the model and its
-likelihood), ``_kernels`` (serial numba kernels; their numpy twins live in the tests,
-``tests/localization/sensor/naive.py``).
+likelihood), ``_echo`` (the echo model), ``_kernels`` (serial numba kernels; their numpy
+twins live in the tests, ``tests/localization/sensor/naive.py``).
 """
 
 from __future__ import annotations
 
 from localization.sensor._config import (
+    ECHO_NATS,
     Model,
     SensorConfig,
 )
+from localization.sensor._echo import Explanation, cos_sigma, echo_proposals, explanation
 from localization.sensor._measurement import (
     Measurement,
     prepare_measurement,
@@ -48,9 +52,15 @@ from localization.sensor._tables import (
     SensorTables,
     build_tables,
     free_space_mask,
+    uniform_free_poses,
 )
 
 __all__ = [
+    "ECHO_NATS",
+    "Explanation",
+    "cos_sigma",
+    "echo_proposals",
+    "explanation",
     "Measurement",
     "Model",
     "OFF_MAP_PENALTY",
@@ -65,6 +75,7 @@ __all__ = [
     "prepare_measurement",
     "score_cells_all_headings",
     "score_poses",
+    "uniform_free_poses",
     "uses_direction",
     "validate_block",
     "validate_heatmap",

@@ -10,7 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
-Model = Literal["correlation", "range"]
+Model = Literal["correlation", "range", "echo"]
+
+#: Nats of echo log-likelihood per unit of the echo model's score: ``rho = 1 + ll / ECHO_NATS``,
+#: so ``beta = ECHO_NATS`` applies the echo likelihood untempered.
+ECHO_NATS = 200.0
 
 
 @dataclass(frozen=True)
@@ -19,9 +23,13 @@ class SensorConfig:
 
     Parameters
     ----------
-    model : {"correlation", "range"}
-        Full polar correlation, or range-only. "correlation" still falls back to "range"
-        for a block without direction information (see ``min_speed_m_s``).
+    model : {"correlation", "range", "echo"}
+        ``correlation`` and ``range`` compare the heat map with G (the baseline; the paper's
+        Fig. 1(b)); "correlation" falls back to "range" for a block without direction
+        information (see ``min_speed_m_s``). ``echo`` is the physical model: the echoes the
+        map's walls give at each pose (:mod:`mapping.forward`: specular points, inside
+        corners, orders up to ``echo_order``) against the peaks of the heat map; it needs a
+        map with walls and reads range only while the robot stands still.
     n_angles : int
         Directions of the full-circle polar grid (72 = 5 deg); also the grid filter's
         heading bins.
@@ -44,6 +52,27 @@ class SensorConfig:
         Share of the unfolded measurement kept above the noise floor: the
         ``1 - keep_fraction`` quantile is subtracted and negatives set to 0, so the cross
         term of the correlation is a sparse dot product.
+    echo_order : int
+        Echo model: reflection orders predicted (1..4; 2 = walls and inside corners).
+    range_sigma_m : float
+        Echo model: range tolerance of a predicted echo (map error plus peak position).
+    cos_sigma_min, cos_sigma_beam : float
+        Echo model: Doppler-cosine tolerance ``max(cos_sigma_min, cos_sigma_beam * w)``
+        with ``w = c / (2 |v| T f0)`` the width of eq. 1's Doppler beam (one carrier cycle
+        of drift over the block).
+    clutter : float
+        Echo model: likelihood floor of a measured peak no wall explains (people,
+        furniture, unmapped walls), relative to a perfectly explained one.
+    p_detect : float
+        Echo model: probability that a predicted echo at full relative level is heard
+        (below 1: occlusion, absorbing surfaces); a missed one costs ``log(1 - p_detect)``.
+    detect_lo, detect_hi : float
+        Echo model: a predicted echo below ``detect_lo`` of the pose's strongest is not
+        expected; the detection probability ramps up to ``p_detect`` at ``detect_hi``.
+    max_peaks : int
+        Echo model: strongest heat-map peaks read per block.
+    peak_snr : float
+        Echo model: a peak must stand ``peak_snr`` times above the block's median.
     """
 
     model: Model = "correlation"
@@ -58,10 +87,21 @@ class SensorConfig:
     map_blur_cells: float = 1.0
     range_gain_exponent: float = 1.0
     keep_fraction: float = 0.10
+    echo_order: int = 2
+    range_sigma_m: float = 0.02
+    cos_sigma_min: float = 0.03
+    cos_sigma_beam: float = 0.5
+    clutter: float = 0.05
+    p_detect: float = 0.9
+    detect_lo: float = 0.1
+    detect_hi: float = 0.4
+    max_peaks: int = 12
+    peak_snr: float = 6.0
 
     def __post_init__(self) -> None:
-        if self.model not in ("correlation", "range"):
-            raise ValueError(f"model must be 'correlation' or 'range', got {self.model!r}")
+        if self.model not in ("correlation", "range", "echo"):
+            raise ValueError(
+                f"model must be 'correlation', 'range' or 'echo', got {self.model!r}")
         if not 8 <= self.n_angles <= 720 or self.n_angles % 2:
             raise ValueError(f"n_angles must be even in [8, 720], got {self.n_angles}")
         if self.n_headings < self.n_angles or self.n_headings % self.n_angles:
@@ -86,6 +126,21 @@ class SensorConfig:
             raise ValueError(f"keep_fraction must be in (0, 1], got {self.keep_fraction}")
         if not self.map_blur_cells >= 0:
             raise ValueError(f"map_blur_cells must be >= 0, got {self.map_blur_cells}")
+        echo_checks = (
+            ("echo_order", "in 1..4", self.echo_order in (1, 2, 3, 4)),
+            ("range_sigma_m", "in (0, 1] m", 0 < self.range_sigma_m <= 1),
+            ("cos_sigma_min", "in (0, 2]", 0 < self.cos_sigma_min <= 2),
+            ("cos_sigma_beam", "in [0, 10]", 0 <= self.cos_sigma_beam <= 10),
+            ("clutter", "in (0, 1)", 0 < self.clutter < 1),
+            ("p_detect", "in [0, 1)", 0 <= self.p_detect < 1),
+            ("detect_lo", "in [0, detect_hi)", 0 <= self.detect_lo < self.detect_hi),
+            ("detect_hi", "in (detect_lo, 1]", self.detect_lo < self.detect_hi <= 1),
+            ("max_peaks", "in 1..200", 1 <= self.max_peaks <= 200),
+            ("peak_snr", "in [0, 1000]", 0 <= self.peak_snr <= 1000),
+        )
+        for name, allowed, ok in echo_checks:
+            if not ok:
+                raise ValueError(f"{name} must be {allowed}, got {getattr(self, name)!r}")
 
     @property
     def ranges_m(self) -> FloatArray:

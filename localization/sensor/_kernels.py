@@ -162,3 +162,109 @@ def score_range(ring: NDArray[np.float32], cell: NDArray[np.int64],
     out = np.empty(cell.shape[0], dtype=np.float64)
     _range_kernel(ring, cell, m0, out)
     return out
+
+
+class _EchoPeaks(NamedTuple):
+    """The measured echo peaks of one block: range (m), Doppler cosine and weight of each,
+    and the kernel widths (``sig_r`` m, ``sig_c`` cosine; ``use_cos`` False: range only)."""
+
+    r: NDArray[np.float64]
+    c: NDArray[np.float64]
+    w: NDArray[np.float64]
+    sig_r: float
+    sig_c: float
+    use_cos: bool
+
+
+class _EchoTerms(NamedTuple):
+    """The echo model's constants: clutter share ``eps`` of a measured peak no predicted echo
+    explains, detection probability ``p_max`` of a predicted echo at full relative level
+    (ramping from 0 at ``rel_lo`` to ``p_max`` at ``rel_hi`` of the pose's strongest echo),
+    and the range window ``[r_min, r_max]`` in which peaks are read."""
+
+    eps: float
+    p_max: float
+    rel_lo: float
+    rel_hi: float
+    r_min: float
+    r_max: float
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _echo_kernel(
+    count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
+    pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms, out: NDArray[np.float64],
+) -> None:
+    """Echo log-likelihood of each pose, and how much each pose explains.
+
+    Pose i predicts ``count[i]`` echoes (range ``pr``, Doppler cosine ``pc``, amplitude
+    ``pa``); the block measured peaks ``m``. With ``kappa_jk = exp(-(dr/sig_r)^2/2
+    - (dc/sig_c)^2/2)`` (the cosine term only when ``m.use_cos``):
+
+        ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk)           measured peaks
+           + sum_k log(1 - p_k (1 - max_j kappa_jk))                  predicted echoes
+
+    ``p_k`` the detection probability of echo k from its level relative to the pose's
+    strongest echo in the window. ``out[i] = (ll, explained, heard)``: the weighted share of
+    measured peaks explained (``sum w_j max_k kappa / sum w_j``) and the detection-weighted
+    share of predicted echoes heard (``sum p_k max_j kappa / sum p_k``; 1 when none is
+    expected).
+    """
+    n_meas = m.r.shape[0]
+    best = np.empty(n_meas)
+    w_sum = 0.0
+    for j in range(n_meas):
+        w_sum += m.w[j]
+    log_eps = math.log(t.eps)
+    for i in range(count.shape[0]):
+        n_pred = count[i]
+        for j in range(n_meas):
+            best[j] = 0.0
+        a_max = 0.0
+        for k in range(n_pred):
+            if t.r_min <= pr[i, k] <= t.r_max and pa[i, k] > a_max:
+                a_max = pa[i, k]
+        ll = 0.0
+        p_sum = 0.0
+        heard = 0.0
+        for k in range(n_pred):
+            r = pr[i, k]
+            if r < t.r_min or r > t.r_max:
+                continue
+            bk = 0.0
+            for j in range(n_meas):
+                d = (m.r[j] - r) / m.sig_r
+                e = 0.5 * d * d
+                if m.use_cos:
+                    dc = (m.c[j] - pc[i, k]) / m.sig_c
+                    e += 0.5 * dc * dc
+                if e < 18.0:
+                    kv = math.exp(-e)
+                    if kv > bk:
+                        bk = kv
+                    if kv > best[j]:
+                        best[j] = kv
+            rel = pa[i, k] / a_max if a_max > 0.0 else 0.0
+            p = t.p_max * min(max((rel - t.rel_lo) / (t.rel_hi - t.rel_lo), 0.0), 1.0)
+            ll += math.log(1.0 - p * (1.0 - bk))
+            p_sum += p
+            heard += p * bk
+        explained = 0.0
+        for j in range(n_meas):
+            ll += m.w[j] * (math.log(t.eps + (1.0 - t.eps) * best[j]) if best[j] > 0.0
+                            else log_eps)
+            explained += m.w[j] * best[j]
+        out[i, 0] = ll
+        out[i, 1] = explained / w_sum if w_sum > 0.0 else 1.0
+        out[i, 2] = heard / p_sum if p_sum > 0.0 else 1.0
+
+
+def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
+               pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms) -> NDArray[np.float64]:
+    """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0)."""
+    out = np.empty((count.shape[0], 3), dtype=np.float64)
+    _echo_kernel(np.ascontiguousarray(count, dtype=np.int64),
+                 np.ascontiguousarray(np.nan_to_num(pr), dtype=np.float64),
+                 np.ascontiguousarray(np.nan_to_num(pc), dtype=np.float64),
+                 np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64), m, t, out)
+    return out

@@ -10,7 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.sensor._config import Model, SensorConfig
+from localization.sensor._kernels import _EchoPeaks
 from mapping.heatmap import HeatMap
+from mapping.walls import PeakParams, heatmap_peaks
 
 FloatArray = NDArray[np.float64]
 
@@ -21,7 +23,7 @@ class Measurement:
 
     Attributes
     ----------
-    model : {"correlation", "range"}
+    model : {"correlation", "range", "echo"}
         The model actually used for this block.
     direction_observable : bool
         Whether the block carried direction information.
@@ -32,6 +34,11 @@ class Measurement:
         Non-zero entries of ``dense`` (correlation model).
     m_mean, m_norm : float
         Mean of ``dense`` and norm of ``dense - m_mean`` (correlation model).
+    peaks : optional
+        Echo model: the block's heat-map peaks (range, Doppler cosine, weight) and the
+        kernel widths; None for the G models.
+    speed_m_s : float
+        The block's odometry speed (the echo model predicts the Doppler with it).
     """
 
     model: Model
@@ -41,6 +48,13 @@ class Measurement:
     val: FloatArray
     m_mean: float
     m_norm: float
+    peaks: _EchoPeaks | None = None
+    speed_m_s: float = 0.0
+
+    @property
+    def n_peaks(self) -> int:
+        """Echo peaks read off the block (echo model; 0 otherwise)."""
+        return 0 if self.peaks is None else int(self.peaks.r.shape[0])
 
 
 def validate_heatmap(heat_map: HeatMap) -> None:
@@ -109,6 +123,8 @@ def prepare_measurement(heat_map: HeatMap, config: SensorConfig) -> Measurement:
     """
     validate_heatmap(heat_map)
     directional = uses_direction(heat_map, config)
+    if config.model == "echo":
+        return _echo_measurement(heat_map, config, directional)
     model: Model = config.model if directional else "range"
     binned = _bin_ranges(np.asarray(heat_map.H, dtype=np.float64), heat_map.ranges_m, config)
     binned *= config.ranges_m[None, :] ** config.range_gain_exponent
@@ -153,3 +169,36 @@ def _bin_ranges(H: FloatArray, ranges_m: FloatArray, config: SensorConfig) -> Fl
     counts = np.diff(idx)
     sums = csum[:, idx[1:]] - csum[:, idx[:-1]]
     return np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+
+
+def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool) -> Measurement:
+    """The echo model's measurement: the block's strongest heat-map peaks
+    (:func:`mapping.walls.heatmap_peaks`), each with unit weight, and the kernel widths.
+
+    Angles are measured from the direction of travel (heading + pi when reversing), as the
+    forward model's Doppler cosines are, so no flip is needed here. A block without peaks
+    is valid (it informs through the echoes it does not contain) but carries no evidence
+    of where the robot is; the filter reports it (``n_peaks``). The Doppler-cosine width
+    depends on the sonar (carrier, block length), which the scorer knows: ``sig_c`` here
+    is only the floor ``cos_sigma_min``.
+    """
+    params = PeakParams(snr=config.peak_snr, min_relative=0.08, min_range_m=config.min_range_m,
+                        max_range_m=config.max_range_m, max_peaks=config.max_peaks,
+                        min_speed_m_s=0.0)
+    # only the lags up to the sensor's range (plus the peak window) can hold a peak it reads
+    cols = min(int(np.searchsorted(heat_map.ranges_m, config.max_range_m)) + 2 * 12 + 1,
+               heat_map.H.shape[1])
+    cropped = HeatMap(H=np.asarray(heat_map.H)[:, :cols], angles_rad=heat_map.angles_rad,
+                      ranges_m=heat_map.ranges_m[:cols], speed_m_s=heat_map.speed_m_s,
+                      direction_observable=heat_map.direction_observable)
+    pk = heatmap_peaks(cropped, params)
+    peaks = _EchoPeaks(r=np.ascontiguousarray(pk.range_m, dtype=np.float64),
+                       c=np.ascontiguousarray(np.cos(pk.angle_rad), dtype=np.float64),
+                       w=np.ones(pk.range_m.shape[0]), sig_r=float(config.range_sigma_m),
+                       sig_c=float(config.cos_sigma_min),   # widened by the scorer
+
+                       use_cos=bool(directional))
+    empty = np.zeros(0)
+    return Measurement(model="echo", direction_observable=directional, dense=empty,
+                       idx=empty.astype(np.int64), val=empty, m_mean=0.0, m_norm=1.0,
+                       peaks=peaks, speed_m_s=float(heat_map.speed_m_s))

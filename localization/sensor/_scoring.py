@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 
 from localization.sensor import _kernels as _k
 from localization.sensor._config import SensorConfig
+from localization.sensor._echo import score_echo_poses
 from localization.sensor._measurement import (
     Measurement,
 )
@@ -98,6 +99,8 @@ def score_poses(tables: SensorTables, measurement: Measurement, poses: FloatArra
     depend on the heading at all.
     """
     poses = _check(poses)
+    if measurement.model == "echo":
+        return score_echo_poses(tables, measurement, poses)
     particles = _index(tables, poses)
     if measurement.model == "range":
         return _k.score_range(tables.ring, particles.cell, measurement.dense)
@@ -201,6 +204,13 @@ def score_cells_all_headings(
     cfg = tables.config
     cells = np.asarray(cells, dtype=np.int64)
     flat = cells[:, 0] * tables.shape[1] + cells[:, 1]
+    if measurement.model == "echo":
+        # no circular structure to exploit: score every (cell, heading) pose directly
+        xy = np.asarray(tables.origin_m) + cells[:, ::-1] * tables.resolution_m
+        h = 2.0 * np.pi * np.arange(cfg.n_angles) / cfg.n_angles
+        poses = np.column_stack([np.repeat(xy, cfg.n_angles, axis=0),
+                                 np.tile(h, cells.shape[0])])
+        return score_echo_poses(tables, measurement, poses).reshape(-1, cfg.n_angles)
     if measurement.model == "range":
         rho = _range_scores_numpy(tables.ring, flat, measurement.dense)
         return np.repeat(rho[:, None], cfg.n_angles, axis=1)

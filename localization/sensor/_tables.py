@@ -4,7 +4,7 @@ space a global start draws from (:func:`free_space_mask`); see :mod:`localizatio
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -13,6 +13,8 @@ from scipy import ndimage
 
 from localization.sensor._config import SensorConfig
 from localization.sensor._kernels import _ScoreTables
+from mapping.forward import WallSet
+from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
@@ -45,6 +47,12 @@ class SensorTables:
     origin_m, resolution_m : map geometry (see :class:`~mapping.wallmap.WallMap`)
     free_mask : ndarray bool, shape (ny, nx)
         Cells a robot can stand in (see :func:`free_space_mask`).
+    walls : WallSet
+        The map's vector walls (empty for a raster-only map), read by the echo model.
+    sonar : SonarConfig
+        The sonar the echo model predicts for (carrier, block length, sound speed).
+    coverage : ndarray bool, shape (ny, nx)
+        Cells where the map has evidence (``WallMap.coverage``).
     """
 
     config: SensorConfig
@@ -62,6 +70,27 @@ class SensorTables:
     origin_m: tuple[float, float]
     resolution_m: float
     free_mask: NDArray[np.bool_]
+    walls: WallSet = field(default_factory=lambda: WallSet.from_array(np.zeros((0, 4))))
+    sonar: SonarConfig = field(default_factory=SonarConfig)
+    coverage: NDArray[np.bool_] | None = None
+
+    def free_at(self, xy_m: FloatArray) -> NDArray[np.bool_]:
+        """Whether each point (n, 2) lies on a free cell (False off the map)."""
+        return self._lookup(xy_m, self.free_mask)
+
+    def covered(self, xy_m: FloatArray) -> NDArray[np.bool_]:
+        """Whether each point (n, 2) lies on a cell with map evidence (False off the map)."""
+        return self._lookup(xy_m, self.free_mask if self.coverage is None else self.coverage)
+
+    def _lookup(self, xy_m: FloatArray, mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        ij = np.floor((xy - np.asarray(self.origin_m)) / self.resolution_m + 0.5).astype(
+            np.int64)
+        ny, nx = self.shape
+        on = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        out = np.zeros(xy.shape[0], dtype=bool)
+        out[on] = mask[ij[on, 1], ij[on, 0]]
+        return out
 
     @property
     def n_r(self) -> int:
@@ -88,7 +117,7 @@ class SensorTables:
 
 def build_tables(
     wall_map: WallMap, config: SensorConfig, free_mask: NDArray[np.bool_] | None = None,
-    active_margin_m: float = 1.0,
+    active_margin_m: float = 1.0, sonar: SonarConfig | None = None,
 ) -> SensorTables:
     """Precompute the polar lookup tables of ``wall_map``.
 
@@ -102,7 +131,18 @@ def build_tables(
     active_margin_m : float
         Poses are scored within the free cells' bounding box grown by this margin; poses
         outside it count as off the map.
+    sonar : SonarConfig, optional
+        The sonar of the blocks to be scored (default ``SonarConfig()``, the paper's).
+
+    Raises
+    ------
+    ValueError
+        ``config.model == "echo"`` on a map without walls (a raster-only map: build it with
+        the ``walls`` method).
     """
+    if config.model == "echo" and wall_map.n_walls == 0:
+        raise ValueError("model 'echo' needs a map with walls (walls_m is empty: build the map "
+                         "with method 'walls', or use model 'correlation')")
     res = float(wall_map.resolution_m)
     ny, nx = wall_map.shape
     pad = int(math.ceil(config.max_range_m / res)) + 2
@@ -142,6 +182,9 @@ def build_tables(
         pad=pad,
         shape=(ny, nx), origin_m=(float(wall_map.origin_m[0]), float(wall_map.origin_m[1])),
         resolution_m=res, free_mask=np.asarray(free_mask, dtype=bool),
+        walls=_relative_walls(wall_map),
+        sonar=SonarConfig() if sonar is None else sonar,
+        coverage=np.asarray(wall_map.coverage, dtype=bool),
     )
 
 
@@ -207,3 +250,23 @@ def free_space_mask(
     if inside.sum() >= 0.05 * mask.sum():
         mask = inside          # walls enclose a region: the robot is inside it
     return np.asarray(mask)
+
+
+def _relative_walls(wall_map: WallMap) -> WallSet:
+    """The map's walls with strengths relative to the strongest (the echo model compares
+    echo levels within a pose, so only ratios matter, and products over bounces stay <= 1)."""
+    s = np.asarray(wall_map.wall_strength, dtype=np.float64)
+    top = float(s.max()) if s.size else 0.0
+    return WallSet.from_array(wall_map.walls_m, s / top if top > 0 else np.ones_like(s))
+
+
+def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:
+    """``n`` poses uniform over the free cells of the map, headings uniform in (-pi, pi]."""
+    iy, ix = np.nonzero(tables.free_mask)
+    pick = rng.integers(0, iy.size, size=n)
+    u = rng.random((n, 3))
+    out = np.empty((n, 3))
+    out[:, 0] = tables.origin_m[0] + (ix[pick] + u[:, 0] - 0.5) * tables.resolution_m
+    out[:, 1] = tables.origin_m[1] + (iy[pick] + u[:, 1] - 0.5) * tables.resolution_m
+    out[:, 2] = -np.pi + 2 * np.pi * u[:, 2]
+    return out

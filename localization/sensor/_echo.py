@@ -1,0 +1,166 @@
+"""The echo model: a physical sensor model on the map's walls; see :mod:`localization.sensor`.
+
+At each pose the forward model (:func:`mapping.forward.echoes_batch`) lists the echoes the
+map's walls give: specular points of the visible walls, inside corners and higher orders up
+to ``SensorConfig.echo_order``, each with its range, Doppler cosine and level. The measured
+block is reduced to its heat-map peaks (range, Doppler cosine). The likelihood (numba kernel
+``_echo_kernel``) pairs the two with a Gaussian tolerance in range and cosine:
+
+* every measured peak is explained by the nearest predicted echo or is clutter
+  (``log(clutter + (1 - clutter) kappa)``: people, furniture, unmapped walls, orders above
+  ``echo_order``);
+* every predicted echo is heard or missed (``log(1 - p (1 - kappa))``, ``p`` at most
+  ``p_detect``: occlusion, absorbing surfaces, weak echoes).
+
+Folded left/right as eq. 1 is: only the Doppler cosine is compared, so a pose and its mirror
+about the direction of travel score alike where the walls allow it. While the robot stands
+still (no direction information) only ranges are compared. The score is returned in the
+correlation's units, ``rho = 1 + ll / ECHO_NATS``, so the filter's tempering
+(``beta * (rho - rho_best)``), floor and calibration apply unchanged: ``beta = ECHO_NATS``
+uses the likelihood as it is.
+
+Besides the likelihood the kernel reports, per pose, how much it explains: the share of
+measured peaks explained and the share of expected echoes heard (:func:`explanation`). The
+filter's honest status compares these at its estimate with what tracked runs show at the true
+pose (:mod:`localization.estimate`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from localization.sensor import _kernels as _k
+from localization.sensor._config import ECHO_NATS
+from localization.sensor._measurement import Measurement
+from localization.sensor._tables import SensorTables, uniform_free_poses
+from mapping.forward import ForwardParams, echoes_batch
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """How well poses explain one block (echo model).
+
+    Attributes
+    ----------
+    log_likelihood : ndarray (n,)
+        Untempered echo log-likelihood (nats).
+    explained : ndarray (n,)
+        Weighted share of the measured peaks a predicted echo explains, in [0, 1].
+    heard : ndarray (n,)
+        Detection-weighted share of the expected echoes that were heard, in [0, 1] (1 when
+        the pose expects none).
+    n_peaks : int
+        Measured peaks of the block.
+    """
+
+    log_likelihood: FloatArray
+    explained: FloatArray
+    heard: FloatArray
+    n_peaks: int
+
+
+def cos_sigma(tables: SensorTables, measurement: Measurement) -> float:
+    """Doppler-cosine tolerance of a block: ``max(cos_sigma_min, cos_sigma_beam * w)``, ``w =
+    c / (2 |v| T f0)`` the width of eq. 1's Doppler beam at the block's speed."""
+    cfg, sonar = tables.config, tables.sonar
+    v = max(abs(measurement.speed_m_s), 1e-6)
+    beam = sonar.sound_speed_m_s / (2.0 * v * sonar.block_s * sonar.carrier_hz)
+    return float(min(max(cfg.cos_sigma_min, cfg.cos_sigma_beam * beam), 2.0))
+
+
+def _terms(tables: SensorTables) -> _k._EchoTerms:
+    cfg = tables.config
+    return _k._EchoTerms(eps=cfg.clutter, p_max=cfg.p_detect, rel_lo=cfg.detect_lo,
+                         rel_hi=cfg.detect_hi, r_min=cfg.min_range_m, r_max=cfg.max_range_m)
+
+
+def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArray
+                ) -> Explanation:
+    """Echo log-likelihood and explained / heard shares of each pose (n, 3).
+
+    Raises
+    ------
+    ValueError
+        The measurement was not prepared for the echo model.
+    """
+    if measurement.peaks is None:
+        raise ValueError("measurement was not prepared for model 'echo' (no peaks)")
+    peaks = measurement.peaks._replace(sig_c=cos_sigma(tables, measurement))
+    params = ForwardParams(max_order=tables.config.echo_order,
+                           max_range_m=tables.config.max_range_m + 3 * tables.config.range_sigma_m)
+    if tables.walls.n == 0:
+        n = poses.shape[0]
+        count = np.zeros(n, dtype=np.int64)
+        empty = np.zeros((n, 0))
+        out = _k.score_echo(count, empty, empty, empty, peaks, _terms(tables))
+    else:
+        b = echoes_batch(tables.walls, poses, measurement.speed_m_s, tables.sonar, params)
+        out = _k.score_echo(b.count, b.range_m, b.cos_doppler, b.amplitude, peaks,
+                            _terms(tables))
+    return Explanation(log_likelihood=out[:, 0], explained=out[:, 1], heard=out[:, 2],
+                       n_peaks=measurement.n_peaks)
+
+
+def score_echo_poses(tables: SensorTables, measurement: Measurement, poses: FloatArray
+                     ) -> FloatArray:
+    """The echo model's score in correlation units, ``1 + ll / ECHO_NATS`` (NaN off the
+    active area, as the G models)."""
+    ex = explanation(tables, measurement, poses)
+    rho = 1.0 + ex.log_likelihood / ECHO_NATS
+    iy0, iy1, ix0, ix1 = tables.active
+    c = (poses[:, :2] - np.asarray(tables.origin_m)) / tables.resolution_m
+    ix, iy = np.floor(c[:, 0] + 0.5), np.floor(c[:, 1] + 0.5)
+    on = (ix >= ix0) & (ix < ix1) & (iy >= iy0) & (iy < iy1)
+    return np.where(on, rho, math.nan)
+
+
+def echo_proposals(tables: SensorTables, measurement: Measurement, n: int,
+                   rng: np.random.Generator, strongest: int = 3) -> FloatArray:
+    """``n`` poses that would hear one of the block's strongest peaks as a wall's specular
+    echo (data-driven proposals for a global start or a re-localization).
+
+    A peak at range r and Doppler cosine c is, if it is a first-order echo of wall w, heard
+    from a point ``r`` off w along its normal, with the wall at ``+-arccos(c)`` from the
+    direction of travel. Each proposal picks a peak (the strongest ``strongest``, equally), a
+    wall (longer ones more often), a point along it, a side and a mirror sign, and so lands
+    on a pose that explains that echo exactly; a range-only block gets a uniform heading.
+    Poses off the free space are replaced by uniform draws over it (as are all ``n`` when
+    the block has no peak or the map no wall). The proposals are unweighted: the caller
+    scores them with the block.
+    """
+    out = uniform_free_poses(tables, n, rng)
+    peaks = measurement.peaks
+    if n == 0 or peaks is None or peaks.r.shape[0] == 0 or tables.walls.n == 0:
+        return out
+    seg = tables.walls.segments_m
+    a, b = seg[:, 0], seg[:, 1]
+    length = np.hypot(*(b - a).T)
+    ok = length > 1e-6
+    if not ok.any():
+        return out
+    a, b, length = a[ok], b[ok], length[ok]
+    u = (b - a) / length[:, None]
+    normal = np.column_stack([-u[:, 1], u[:, 0]])
+    j = rng.integers(0, min(strongest, peaks.r.shape[0]), size=n)
+    w = rng.choice(length.size, size=n, p=length / length.sum())
+    t = rng.random(n)[:, None]
+    side = rng.choice([-1.0, 1.0], size=n)[:, None]
+    foot = a[w] + t * (b[w] - a[w])
+    xy = foot + side * peaks.r[j][:, None] * normal[w]
+    toward = np.arctan2(*(-side * normal[w])[:, ::-1].T)       # bearing robot -> wall
+    if peaks.use_cos:
+        theta = np.arccos(np.clip(peaks.c[j], -1.0, 1.0)) * rng.choice([-1.0, 1.0], size=n)
+        travel = toward - theta
+        heading = travel + (np.pi if measurement.speed_m_s < 0 else 0.0)
+    else:
+        heading = rng.uniform(-np.pi, np.pi, size=n)
+    cand = np.column_stack([xy, np.angle(np.exp(1j * heading))])
+    free = tables.free_at(cand[:, :2])
+    out[free] = cand[free]
+    return out
