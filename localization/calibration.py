@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.estimate import default_start_cov, track_metrics
-from localization.particle_filter import FilterConfig, ParticleFilter, run_filter
-from localization.sensor import SensorTables
+from localization.particle_filter import FilterConfig, ParticleFilter, block_fit, run_filter
+from localization.sensor import SensorTables, prepare_measurement
 from mapping.heatmap import HeatMap, heatmap_of_run
 from mapping.run import Run
 
@@ -334,3 +334,51 @@ def calibrate_beta(tables: SensorTables, runs: Sequence[CalibrationRun],
         return (float(np.mean(vals)) if vals else math.nan), n_lost
 
     return search_beta(evaluate, betas, target_nees, max_widen, widen_factor)
+
+
+@dataclass(frozen=True)
+class FitCalibration:
+    """Result of :func:`calibrate_fit_threshold`.
+
+    Attributes
+    ----------
+    threshold : float
+        The ``quantile`` of the block fit at the true pose (``FilterConfig.fit_threshold``).
+    quantile : float
+    fits : ndarray
+        The fit at the true pose of every block used (with truth and at least one peak).
+    """
+
+    threshold: float
+    quantile: float
+    fits: FloatArray
+
+
+def calibrate_fit_threshold(tables: SensorTables, runs: Sequence[CalibrationRun],
+                            quantile: float = 0.01) -> FitCalibration:
+    """How well the echo model explains blocks at the TRUE pose on tracked runs: the
+    ``quantile`` of that fit is the threshold below which the filter calls a block
+    unexplained (so about ``quantile`` of well-tracked blocks are flagged, and the status
+    says ``uncertain`` for one of them; two in a row, ``lost``, happen at about its square).
+
+    Raises
+    ------
+    ValueError
+        ``tables`` not for the echo model, ``quantile`` outside (0, 0.5], or no usable block.
+    """
+    if tables.config.model != "echo":
+        raise ValueError(f"tables must be for model 'echo', got {tables.config.model!r}")
+    if not 0 < quantile <= 0.5:
+        raise ValueError(f"quantile must be in (0, 0.5], got {quantile}")
+    fits = []
+    for run in runs:
+        for hm, truth in zip(run.heat_maps, run.truth, strict=True):
+            if hm is None or not np.all(np.isfinite(truth)):
+                continue
+            meas = prepare_measurement(hm, tables.config)
+            if meas.n_peaks:
+                fits.append(block_fit(tables, meas, truth))
+    if not fits:
+        raise ValueError("no block with truth and an echo peak to calibrate on")
+    arr = np.asarray(fits)
+    return FitCalibration(float(np.quantile(arr, quantile)), float(quantile), arr)

@@ -205,6 +205,8 @@ def summarize(
         converged=bool(best.weight >= config.converged_weight and compact),
         direction_observable=direction_observable, updated=updated, model=model,
         likelihood_scale=float(likelihood_scale),
+        status="converged" if best.weight >= config.converged_weight and compact
+        else "uncertain",
     )
 
 
@@ -281,15 +283,8 @@ TRACK_STATUSES = ("converged", "uncertain", "lost")
 
 
 def track_status(estimate: PoseEstimate) -> str:
-    """Interim status of one block: ``"converged"`` when ``estimate.converged``, else
-    ``"uncertain"``.
-
-    ``"lost"`` (see :data:`TRACK_STATUSES`) is never returned yet: nothing a
-    :class:`PoseEstimate` carries says that the block's likelihood collapsed. Its
-    ``likelihood_scale`` < 1 says the update was sharp, not that the fit was poor (it also
-    fires while a global start converges), and the augmented-MCL averages ``w_slow`` /
-    ``w_fast`` stay inside the particle filter (the grid filter has none). Issue 14 item 2
-    replaces this rule by a calibrated per-block statistic of how well the estimate explains
-    the block; until then ``converged`` can be confidently wrong.
-    """
-    return "converged" if estimate.converged else "uncertain"
+    """The status of one block, :attr:`PoseEstimate.status`: :func:`summarize` sets
+    ``converged`` / ``uncertain`` from the set's shape; the particle filter refines it with
+    the map's coverage and (echo model) how well the estimate explains the block, which is
+    what can say ``lost``."""
+    return estimate.status

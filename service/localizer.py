@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 from localization.estimate import PoseEstimate
 from localization.grid_filter import GridFilter
 from localization.particle_filter import FilterConfig, ParticleFilter
-from localization.sensor import SensorConfig, SensorTables, build_tables, validate_block
+from localization.sensor import (
+    SensorConfig,
+    SensorTables,
+    build_tables,
+    resolve_model,
+    validate_block,
+)
 from mapping.heatmap import HeatMap, doppler_heatmap
 from mapping.signal import SonarConfig
 from service.mapstore import MapStore, map_config
@@ -79,12 +85,13 @@ class LocalizationFactory:
     ----------
     maps : MapStore
     sensor : SensorConfig, optional
-        Sensor model shared by all sessions (default: ``localization``'s defaults).
+        Sensor model shared by all sessions (default: the physical ``echo`` model; a map
+        without walls gets the G ``correlation`` model with the same other settings).
     """
 
     def __init__(self, maps: MapStore, sensor: SensorConfig | None = None) -> None:
         self.maps = maps
-        self.sensor = sensor or SensorConfig()
+        self.sensor = sensor or SensorConfig(model="echo")
         self._tables: dict[str, tuple[int, SensorTables, SonarConfig]] = {}
         self._lock = threading.Lock()
 
@@ -94,7 +101,11 @@ class LocalizationFactory:
         with self._lock:
             hit = self._tables.get(map_id)
             if hit is None or hit[0] != id(wallmap):
-                hit = (id(wallmap), build_tables(wallmap, self.sensor), map_config(wallmap))
+                sonar = map_config(wallmap)
+                model = resolve_model(wallmap, "auto") if self.sensor.model == "echo" \
+                    else self.sensor.model
+                sensor = dataclasses.replace(self.sensor, model=model)
+                hit = (id(wallmap), build_tables(wallmap, sensor, sonar=sonar), sonar)
                 self._tables[map_id] = hit
             return hit[1], hit[2]
 

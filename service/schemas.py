@@ -192,6 +192,15 @@ class Estimate(BaseModel):
     likelihood_scale: float = Field(
         1.0, description="share of this block's log-likelihood applied (1: all; less when "
         "the update was tempered to keep enough particles alive)")
+    status: Literal["converged", "uncertain", "lost"] = Field(
+        "uncertain", description="converged: one compact mode, inside the map's coverage and "
+        "(echo model) the block explained at the estimate; uncertain: several modes, outside "
+        "the coverage, nothing heard or one unexplained block; lost: unexplained blocks in a "
+        "row (the filter is re-localizing)")
+    fit: float | None = Field(
+        None, description="echo model: how well the estimate explains the block, in [0, 1] "
+        "(null for the G models or a block without echoes)")
+    covered: bool = Field(True, description="the estimate lies where the map has evidence")
     processing_ms: float = Field(description="server time for this update")
 
 

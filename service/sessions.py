@@ -190,6 +190,8 @@ def estimate_to_json(est: PoseEstimate) -> dict[str, Any]:
         "ess": float(est.ess), "converged": bool(est.converged),
         "direction_observable": bool(est.direction_observable), "updated": bool(est.updated),
         "model": str(est.model), "likelihood_scale": float(est.likelihood_scale),
+        "status": str(est.status), "fit": None if math.isnan(est.fit) else float(est.fit),
+        "covered": bool(est.covered),
     }
 
 
@@ -210,7 +212,10 @@ def estimate_from_json(d: dict[str, Any]) -> PoseEstimate:
             cov_all=arr(d["cov_all"]), modes=modes, ess=float(d["ess"]),
             converged=bool(d["converged"]), direction_observable=bool(d["direction_observable"]),
             updated=bool(d["updated"]), model=str(d["model"]),
-            likelihood_scale=float(d["likelihood_scale"]))
+            likelihood_scale=float(d["likelihood_scale"]),
+            status=str(d.get("status", "converged" if d["converged"] else "uncertain")),
+            fit=math.nan if d.get("fit") is None else float(d["fit"]),
+            covered=bool(d.get("covered", True)))
     extra = d.get("extra", {})
     cov = arr(d["covariance"])
     return PoseEstimate(
@@ -221,7 +226,8 @@ def estimate_from_json(d: dict[str, Any]) -> PoseEstimate:
         ess=float(d["ess"]), converged=bool(d["converged"]),
         direction_observable=bool(d["direction_observable"]),
         updated=bool(extra.get("updated", True)), model=str(extra.get("model", "correlation")),
-        likelihood_scale=float(extra.get("likelihood_scale", 1.0)))
+        likelihood_scale=float(extra.get("likelihood_scale", 1.0)),
+        status="converged" if d["converged"] else "uncertain")
 
 
 def _check_finite(est: PoseEstimate) -> None:

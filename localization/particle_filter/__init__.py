@@ -11,7 +11,9 @@ without pickle (`STATE_FORMAT`). `run_filter` runs a filter over a whole run;
 anything with the filters' ``step`` (`ParticleFilter`, the grid filter).
 
 Entry points: `FilterConfig` (every parameter, with its unit and measured effect) and
-`ParticleFilter`.
+`ParticleFilter`. With the echo sensor model each step also reports an honest status
+(`block_fit`: how well the estimate explains the block; `block_status`: converged / uncertain /
+lost) and re-localizes on unexplained blocks with poses that explain them (`propose`).
 
 Notes
 -----
@@ -28,15 +30,19 @@ from localization.particle_filter._filter import (
     STATE_FORMAT,
     ParticleFilter,
     Steppable,
+    block_fit,
     block_odometry,
+    block_status,
     init_global,
     init_tracked,
     inject,
     kld_count,
     predict,
+    propose,
     resample,
     run_filter,
     temper_to_ess,
+    twin_evidence,
     weigh,
 )
 
@@ -45,14 +51,18 @@ __all__ = [
     "ParticleFilter",
     "STATE_FORMAT",
     "Steppable",
+    "block_fit",
     "block_odometry",
+    "block_status",
     "init_global",
     "init_tracked",
     "inject",
     "kld_count",
     "predict",
+    "propose",
     "resample",
     "run_filter",
     "temper_to_ess",
+    "twin_evidence",
     "weigh",
 ]

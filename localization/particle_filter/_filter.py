@@ -54,6 +54,7 @@ from localization.sensor import (
     pose_log_likelihood,
     prepare_measurement,
     score_poses,
+    symmetric_poses,
     uniform_free_poses,
 )
 from mapping.angles import wrap_angle
@@ -209,6 +210,38 @@ def propose(poses: FloatArray, n_replace: int, tables: SensorTables, measurement
     return out
 
 
+_STENCIL = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0],
+                                indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArray,
+                 step: tuple[float, float, float] = (0.04, 0.04, math.radians(3.0)),
+                 rounds: int = 4) -> FloatArray:
+    """Each pose (k, 3) moved to the best echo log-likelihood on a shrinking 3x3x3 stencil
+    (``rounds`` halvings of ``step``)."""
+    cur = np.asarray(poses, dtype=np.float64).copy()
+    h = np.asarray(step, dtype=np.float64)
+    for _ in range(rounds):
+        cand = (cur[:, None, :] + _STENCIL[None] * h).reshape(-1, 3)
+        ll = explanation(tables, measurement, cand).log_likelihood.reshape(cur.shape[0], -1)
+        cur = cand.reshape(cur.shape[0], -1, 3)[np.arange(cur.shape[0]), ll.argmax(axis=1)]
+        h = h / 2.0
+    cur[:, 2] = wrap_angle(cur[:, 2])
+    return cur
+
+
+def twin_evidence(tables: SensorTables, measurement: Measurement, pose: FloatArray,
+                  twins: FloatArray, gap: FloatArray, memory: float) -> FloatArray:
+    """Evidence (nats) for ``pose`` over each of its symmetric ``twins`` (k, 3), accumulated
+    with forgetting: ``memory * gap + ll(pose) - ll(twin)`` (echo log-likelihoods of this
+    block). A symmetric room's twin explains every block alike, so its evidence stays near
+    0 until the walls in view break the symmetry; ``gap`` of another length restarts at 0."""
+    ex = explanation(tables, measurement, np.vstack([pose[None, :], twins]))
+    now = ex.log_likelihood[0] - ex.log_likelihood[1:]
+    prev = gap if gap.shape == now.shape else np.zeros_like(now)
+    return np.asarray(memory * prev + now)
+
+
 def block_fit(tables: SensorTables, measurement: Measurement, pose: FloatArray) -> float:
     """Echo model: how well ``pose`` explains the block, the mean of the share of measured
     peaks explained and the share of expected echoes heard (:func:`explanation`), in [0, 1]."""
@@ -271,6 +304,7 @@ class ParticleFilter:
         self.n_steps = 0
         self.misfits = 0
         self.fresh = False
+        self.twin_gap = np.zeros(0)
         if pose is None:
             self.reset_global()
         else:
@@ -365,15 +399,23 @@ class ParticleFilter:
             updated=meas is not None, model="none" if meas is None else meas.model,
             likelihood_scale=scale)
         misfits, fit = self.misfits, math.nan
+        rivals = np.zeros((0, 3))
+        twin_gap = self.twin_gap
         if echo and meas is not None and meas.n_peaks:
             fit = block_fit(self.tables, meas, estimate.pose)
             misfits = misfits + 1 if fit < cfg.fit_threshold else 0
+            twins = symmetric_poses(self.tables.symmetries, estimate.pose)
+            if twins.shape[0]:
+                twin_gap = twin_evidence(self.tables, meas, estimate.pose, twins,
+                                         self.twin_gap, cfg.twin_memory)
+                rivals = twins[twin_gap < cfg.twin_margin_nats]
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
-        status = block_status(estimate.converged, covered, misfits, cfg.lost_after,
-                              meas is None or meas.n_peaks > 0 or not echo)
+        status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
+                              cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
-        if meas is not None and (reseed or ess < cfg.resample_ess_fraction * poses.shape[0]):
+        low_ess = ess < cfg.resample_ess_fraction * poses.shape[0]
+        if meas is not None and (reseed or rivals.shape[0] or low_ess):
             n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
@@ -385,6 +427,13 @@ class ParticleFilter:
             if n_inject:
                 poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
                                self.rng)
+            if rivals.shape[0]:
+                # keep the other explanations alive as particles (the modes are reported)
+                k = int(round(cfg.twin_fraction * n_out))
+                if k:
+                    slots = self.rng.choice(n_out, size=k, replace=False)
+                    poses = poses.copy()
+                    poses[slots] = rivals[self.rng.integers(0, rivals.shape[0], size=k)]
             if reseed and meas is not None:
                 share = (1.0 if misfits >= cfg.reseed_after
                          else min(2.0 * cfg.reseed_fraction, 1.0) if misfits >= cfg.lost_after
@@ -395,6 +444,7 @@ class ParticleFilter:
         self.log_w_slow, self.log_w_fast = slow, fast
         self.n_steps += 1
         self.misfits = misfits
+        self.twin_gap = twin_gap
         if meas is not None:
             self.converged = estimate.converged and misfits == 0
             self.fresh = self.fresh and not (echo and meas.n_peaks)
@@ -413,6 +463,7 @@ class ParticleFilter:
             "converged": np.array(self.converged),
             "misfits": np.array(self.misfits, dtype=np.int64),
             "fresh": np.array(self.fresh),
+            "twin_gap": np.asarray(self.twin_gap, dtype=np.float64).copy(),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -439,6 +490,8 @@ class ParticleFilter:
         pf.converged = bool(state["converged"]) if "converged" in state else False
         pf.misfits = int(state["misfits"]) if "misfits" in state else 0
         pf.fresh = bool(state["fresh"]) if "fresh" in state else False
+        pf.twin_gap = (np.array(state["twin_gap"], dtype=np.float64) if "twin_gap" in state
+                       else np.zeros(0))
         return pf
 
 

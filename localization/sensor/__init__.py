@@ -52,7 +52,10 @@ from localization.sensor._tables import (
     SensorTables,
     build_tables,
     free_space_mask,
+    resolve_model,
+    symmetric_poses,
     uniform_free_poses,
+    wall_symmetries,
 )
 
 __all__ = [
@@ -74,7 +77,10 @@ __all__ = [
     "pose_log_likelihood",
     "prepare_measurement",
     "score_cells_all_headings",
+    "resolve_model",
     "score_poses",
+    "symmetric_poses",
+    "wall_symmetries",
     "uniform_free_poses",
     "uses_direction",
     "validate_block",

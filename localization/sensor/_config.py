@@ -127,7 +127,8 @@ class SensorConfig:
         if not self.map_blur_cells >= 0:
             raise ValueError(f"map_blur_cells must be >= 0, got {self.map_blur_cells}")
         echo_checks = (
-            ("echo_order", "in 1..4", self.echo_order in (1, 2, 3, 4)),
+            ("echo_order", "an integer in 1..4",
+             isinstance(self.echo_order, int) and self.echo_order in (1, 2, 3, 4)),
             ("range_sigma_m", "in (0, 1] m", 0 < self.range_sigma_m <= 1),
             ("cos_sigma_min", "in (0, 2]", 0 < self.cos_sigma_min <= 2),
             ("cos_sigma_beam", "in [0, 10]", 0 <= self.cos_sigma_beam <= 10),

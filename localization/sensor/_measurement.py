@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from localization.sensor._config import Model, SensorConfig
 from localization.sensor._kernels import _EchoPeaks
 from mapping.heatmap import HeatMap
-from mapping.walls import PeakParams, heatmap_peaks
+from mapping.walls import PeakParams, Peaks, heatmap_peaks
 
 FloatArray = NDArray[np.float64]
 
@@ -182,8 +182,9 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
     depends on the sonar (carrier, block length), which the scorer knows: ``sig_c`` here
     is only the floor ``cos_sigma_min``.
     """
+    rows = 1 if directional else int(np.asarray(heat_map.H).shape[0])
     params = PeakParams(snr=config.peak_snr, min_relative=0.08, min_range_m=config.min_range_m,
-                        max_range_m=config.max_range_m, max_peaks=config.max_peaks,
+                        max_range_m=config.max_range_m, max_peaks=config.max_peaks * rows,
                         min_speed_m_s=0.0)
     # only the lags up to the sensor's range (plus the peak window) can hold a peak it reads
     cols = min(int(np.searchsorted(heat_map.ranges_m, config.max_range_m)) + 2 * 12 + 1,
@@ -192,6 +193,12 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
                       ranges_m=heat_map.ranges_m[:cols], speed_m_s=heat_map.speed_m_s,
                       direction_observable=heat_map.direction_observable)
     pk = heatmap_peaks(cropped, params)
+    if not directional:
+        # every row of eq. 1 is the same without direction information: one peak per range
+        _, first = np.unique(np.round(pk.range_m, 6), return_index=True)
+        keep = np.sort(first)[: config.max_peaks]        # strongest first, as heatmap_peaks
+        pk = Peaks(range_m=pk.range_m[keep], angle_rad=pk.angle_rad[keep],
+                   value=pk.value[keep], noise=pk.noise)
     peaks = _EchoPeaks(r=np.ascontiguousarray(pk.range_m, dtype=np.float64),
                        c=np.ascontiguousarray(np.cos(pk.angle_rad), dtype=np.float64),
                        w=np.ones(pk.range_m.shape[0]), sig_r=float(config.range_sigma_m),

@@ -6,12 +6,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from localization.sensor._config import SensorConfig
+from localization.sensor._config import Model, SensorConfig
 from localization.sensor._kernels import _ScoreTables
 from mapping.forward import WallSet
 from mapping.signal import SonarConfig
@@ -73,6 +74,11 @@ class SensorTables:
     walls: WallSet = field(default_factory=lambda: WallSet.from_array(np.zeros((0, 4))))
     sonar: SonarConfig = field(default_factory=SonarConfig)
     coverage: NDArray[np.bool_] | None = None
+
+    @cached_property
+    def symmetries(self) -> FloatArray:
+        """The walls' symmetries (:func:`wall_symmetries`), computed once."""
+        return wall_symmetries(self.walls)
 
     def free_at(self, xy_m: FloatArray) -> NDArray[np.bool_]:
         """Whether each point (n, 2) lies on a free cell (False off the map)."""
@@ -270,3 +276,73 @@ def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -
     out[:, 1] = tables.origin_m[1] + (iy[pick] + u[:, 1] - 0.5) * tables.resolution_m
     out[:, 2] = -np.pi + 2 * np.pi * u[:, 2]
     return out
+
+
+def resolve_model(wall_map: WallMap, model: str) -> Model:
+    """The sensor model to use on ``wall_map``: ``"auto"`` is the physical ``echo`` model on a
+    map with walls and the G ``correlation`` model on a raster-only map; any other name is
+    returned as given (``SensorConfig`` validates it)."""
+    if model == "auto":
+        return "echo" if wall_map.n_walls > 0 else "correlation"
+    if model not in ("echo", "correlation", "range"):
+        raise ValueError(f"model must be 'auto', 'echo', 'correlation' or 'range', got {model!r}")
+    return cast(Model, model)
+
+
+def wall_symmetries(walls: WallSet, tol_m: float = 0.15) -> FloatArray:
+    """The rigid motions (rotations and reflections, not the identity) that map the wall set
+    onto itself within ``tol_m``: a symmetric room's twins, which no sensor can tell apart.
+
+    Candidates map one wall onto another of the same length (both orientations, rotation
+    or reflection); one is kept when every wall lands on some wall. Returns (k, 2, 3)
+    affine matrices ``[R | t]`` acting on points (``R`` orthogonal, det +1 or -1).
+    """
+    seg = np.asarray(walls.segments_m, dtype=np.float64).reshape(-1, 2, 2)
+    n = seg.shape[0]
+    length = np.hypot(*(seg[:, 1] - seg[:, 0]).T)
+    found: list[FloatArray] = []
+
+    def onto(a0: FloatArray, a1: FloatArray, b0: FloatArray, b1: FloatArray,
+             flip: bool) -> FloatArray:
+        ua, ub = a1 - a0, b1 - b0
+        ang = math.atan2(ub[1], ub[0]) - (math.atan2(-ua[1], ua[0]) if flip
+                                          else math.atan2(ua[1], ua[0]))
+        c, s = math.cos(ang), math.sin(ang)
+        rot = np.array([[c, -s], [s, c]])
+        r = rot @ np.diag([1.0, -1.0]) if flip else rot
+        return np.column_stack([r, b0 - r @ a0])
+
+    def maps_all(m: FloatArray) -> bool:
+        img = seg @ m[:, :2].T + m[:, 2]
+        for k in range(n):
+            d1 = np.abs(seg - img[k][None]).max(axis=(1, 2))
+            d2 = np.abs(seg - img[k][None, ::-1]).max(axis=(1, 2))
+            if min(d1.min(), d2.min()) > tol_m:
+                return False
+        return True
+
+    if n == 0:
+        return np.zeros((0, 2, 3))
+    i = int(np.argmax(length))          # the longest wall must land on a wall as long
+    for j in range(n):
+        if abs(length[j] - length[i]) > tol_m:
+            continue
+        for b0, b1 in ((seg[j, 0], seg[j, 1]), (seg[j, 1], seg[j, 0])):
+            for flip in (False, True):
+                m = onto(seg[i, 0], seg[i, 1], b0, b1, flip)
+                identity = np.allclose(m, np.array([[1.0, 0, 0], [0, 1.0, 0]]), atol=1e-6)
+                if identity or any(np.allclose(m, f, atol=tol_m) for f in found):
+                    continue
+                if maps_all(m):
+                    found.append(m)
+    return np.asarray(found).reshape(-1, 2, 3)
+
+
+def symmetric_poses(symmetries: FloatArray, pose: FloatArray) -> FloatArray:
+    """The images (k, 3) of ``pose`` (x, y, heading) under each symmetry (k, 2, 3)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    if symmetries.shape[0] == 0:
+        return np.zeros((0, 3))
+    xy = symmetries[:, :, :2] @ pose[:2] + symmetries[:, :, 2]
+    d = symmetries[:, :, :2] @ np.array([math.cos(pose[2]), math.sin(pose[2])])
+    return np.column_stack([xy, np.arctan2(d[:, 1], d[:, 0])])

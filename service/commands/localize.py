@@ -35,8 +35,9 @@ def add_localize(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--init", choices=("global", "tracked"), default="global",
                    help="global: uniform over the free space; tracked: the run's first tracked "
                         "pose (10 cm / 10 deg)")
-    p.add_argument("--model", choices=("correlation", "range"), default="correlation",
-                   help="sensor model")
+    p.add_argument("--model", choices=("auto", "echo", "correlation", "range"), default="auto",
+                   help="sensor model: echo (physical, needs a map with walls), correlation or "
+                   "range (against G, the baseline); auto = echo when the map has walls")
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
     p.add_argument("--beta", type=float, default=None,
                    help="sensor sharpness (default 200; `omnisonar calibrate` picks one per map)")
@@ -52,7 +53,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     from localization.estimate import default_start_cov, track_metrics
     from localization.grid_filter import GridFilter
     from localization.particle_filter import FilterConfig, ParticleFilter, Steppable, run_filter
-    from localization.sensor import SensorConfig, build_tables, validate_block
+    from localization.sensor import SensorConfig, build_tables, resolve_model, validate_block
     from mapping.angles import pose_error
     from mapping.files import read_map, read_run
     from mapping.heatmap import heatmap_of_run
@@ -60,10 +61,10 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     if args.particles < 1:
         raise ValueError(f"--particles must be >= 1, got {args.particles}")
     wall_map, run = read_map(args.map), read_run(args.run)
-    sensor = SensorConfig(model=args.model)
+    sensor = SensorConfig(model=resolve_model(wall_map, args.model))
     if args.beta is not None:
         sensor = dataclasses.replace(sensor, beta=args.beta)   # validated by SensorConfig
-    tables = build_tables(wall_map, sensor)
+    tables = build_tables(wall_map, sensor, sonar=run.config)
     tracked = np.asarray(np.isfinite(run.pose).all(axis=1), dtype=bool)
     if args.init == "tracked" and not tracked[0]:
         raise ValueError("--init tracked needs a tracked pose in the run's first block")
@@ -103,7 +104,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
                   f" {int(est.converged):4d} {len(est.modes):5d} {err[0]:6.3f}"
                   f" {math.degrees(err[1]):7.1f}")
     summary: dict[str, Any] = {"run": args.run, "map": args.map, "filter": args.filter,
-                                  "init": args.init, "model": args.model,
+                                  "init": args.init, "model": sensor.model,
                                   "n_blocks": run.n_blocks}
     if tracked.any():
         m = track_metrics(np.array(poses), np.array(covs), run.pose)
@@ -264,8 +265,9 @@ def add_posterior(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--walkers", type=int, default=32, help="walkers per mode (>= 6)")
     p.add_argument("--steps", type=int, default=1000, help="first batch of steps per mode")
     p.add_argument("--max-steps", type=int, default=20000, help="cap while reaching 50 tau")
-    p.add_argument("--model", choices=("correlation", "range"), default="correlation",
-                   help="sensor model")
+    p.add_argument("--model", choices=("auto", "echo", "correlation", "range"), default="auto",
+                   help="sensor model: echo (physical, needs a map with walls), correlation or "
+                   "range (against G, the baseline); auto = echo when the map has walls")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--out", required=True, help="output .npz (samples and diagnostics)")
     p.add_argument("--png", help="corner plot PNG")
@@ -278,7 +280,7 @@ def _cmd_posterior(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from localization import posterior as post
-    from localization.sensor import SensorConfig, build_tables
+    from localization.sensor import SensorConfig, build_tables, resolve_model
     from mapping.angles import wrap_angle
     from mapping.files import read_map, read_run
 
@@ -290,7 +292,9 @@ def _cmd_posterior(args: argparse.Namespace) -> int:
                                       max_steps=max(args.max_steps, args.steps))
     run = read_run(args.run)
     post.check_block_range(a, b, run.n_blocks)
-    tables = build_tables(read_map(args.map), SensorConfig(model=args.model))
+    wall_map = read_map(args.map)
+    tables = build_tables(wall_map, SensorConfig(
+        model=resolve_model(wall_map, args.model)), sonar=run.config)
     loglik, truth = post.window_from_run(run, a, b, tables)
     result = None
     with tqdm(total=0, unit="step", desc="grid posterior") as bar:

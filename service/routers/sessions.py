@@ -66,7 +66,9 @@ def estimate_model(session_id: str, seq: int | None, est: PoseEstimate,
         modes=[Mode(pose=pose(m.mean), weight=float(m.weight)) for m in est.modes],
         ess=float(est.ess), converged=bool(est.converged),
         direction_observable=bool(est.direction_observable),
-        likelihood_scale=float(est.likelihood_scale), processing_ms=float(processing_ms),
+        likelihood_scale=float(est.likelihood_scale), status=est.status,  # type: ignore[arg-type]
+        fit=None if math.isnan(est.fit) else float(est.fit), covered=bool(est.covered),
+        processing_ms=float(processing_ms),
     )
 
 

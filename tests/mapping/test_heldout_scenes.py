@@ -20,6 +20,7 @@ from mapping.wallmap import WallMap
 CLEARANCE_M = 0.35
 FRESH_CLEARANCE_M = 0.40  # the fresh scenes' paths were written to keep 0.4 m
 FRESH = ("hexagon", "alcove", "z-corridor")  # written after the wall fit: group "fresh"
+FRESH14 = ("kitchen", "gable", "lobby")  # written for issue 14 (localization): group "fresh14"
 SCENES = heldout_scene_names()
 PATHS = heldout_path_names()
 
@@ -36,6 +37,10 @@ INTERIOR = {
                (2.8, 5.0), (0.0, 5.0)],
     "z-corridor": [(0.0, -1.0), (6.232, -1.0), (3.932, 2.984), (6.7, 2.984), (6.7, 4.984),
                    (0.468, 4.984), (2.768, 1.0), (0.0, 1.0)],
+    "kitchen": [(0.0, 0.0), (7.0, 0.0), (7.0, 4.8), (0.0, 4.8)],
+    "gable": [(0.0, 0.0), (6.0, 0.0), (6.0, 3.3), (3.08, 5.3), (0.0, 3.4)],
+    "lobby": [(0.0, 0.0), (8.0, 0.0), (8.0, 5.5), (0.0, 5.5), (0.0, 3.6), (-0.6, 3.6),
+              (-0.6, 1.8), (0.0, 1.8)],
 }
 
 
@@ -69,10 +74,12 @@ def test_the_four_scenes_of_issue_13_are_there() -> None:
 
 
 def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
-    assert set(FRESH) <= set(SCENES)
+    assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
-        assert spec.group == ("fresh" if spec.scene in FRESH else "held-out")
+        expected = ("fresh" if spec.scene in FRESH
+                    else "fresh14" if spec.scene in FRESH14 else "held-out")
+        assert spec.group == expected
 
 
 def _directions_deg(name: str) -> np.ndarray:
@@ -193,3 +200,10 @@ def test_grid_maps_get_no_wall_scores() -> None:
     assert scores["raster"]["strong_cells"] == 0 and scores["raster"]["f1"] == 0.0
     # seen from x = 1 within 6 m: the closed end and 7 m of each long wall, not the open end
     assert 0.4 < scores["raster"]["observed_wall_share"] < 0.6
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_hand_written_interior_has_its_corners_on_the_scene_walls(name: str) -> None:
+    """The INTERIOR table is written by hand: every vertex must sit on a wall of the scene."""
+    corners = np.array(INTERIOR[name], dtype=np.float64)
+    assert distance_to_walls(corners, heldout_scene(name).segments()).max() < 1e-9

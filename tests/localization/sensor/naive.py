@@ -4,6 +4,8 @@
 :func:`score_poses_numpy` is the twin of :func:`localization.sensor.score_poses`: the pose
 indexing, then the correlation model as one dense gather of every particle's polar samples
 at the measurement's entries, or the range model from centred ring profiles.
+:func:`naive_echo` is the twin of the echo kernel (``score_echo``), written from the formula
+in its docstring.
 """
 
 from __future__ import annotations
@@ -12,6 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from localization.sensor import Measurement, SensorTables
+from localization.sensor._kernels import (  # only to type the echo kernel's twin
+    _EchoPeaks,
+    _EchoTerms,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -78,3 +84,42 @@ def score_poses_numpy(tables: SensorTables, measurement: Measurement,
     if measurement.model == "range":
         return range_numpy(tables.ring, cell, measurement.dense)
     return score_numpy(tables, measurement, base, ux, uy, hb, cell)
+
+
+def naive_echo(count: NDArray[np.int64], pr: FloatArray, pc: FloatArray, pa: FloatArray,
+               peaks: _EchoPeaks, terms: _EchoTerms) -> FloatArray:
+    """Twin of the echo kernel ``score_echo``: (n, 3) of (ll, explained, heard) per pose.
+
+    Straight from the kernel's docstring, one pose at a time with dense (peak, echo) arrays:
+    ``kappa_jk = exp(-(dr/sig_r)^2/2 - (dc/sig_c)^2/2)`` (range only without ``use_cos``)
+    over the predicted echoes in ``[r_min, r_max]``;
+    ``ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk) + sum_k log(1 - p_k (1 - max_j
+    kappa_jk))`` with ``p_k = p_max clip((a_k / a_max - rel_lo) / (rel_hi - rel_lo), 0, 1)``
+    (``a_max`` the pose's strongest echo in the window, ``p_k = 0`` if none is positive);
+    explained ``sum w_j max_k kappa / sum w_j`` (1 without weight), heard ``sum p_k max_j
+    kappa / sum p_k`` (1 when nothing is expected). Row i reads only its first ``count[i]``
+    entries (the rest is padding). No cut-off: the kernel skips pairs with ``kappa <
+    exp(-18)``, which the caller allows for in its tolerance.
+    """
+    w = np.asarray(peaks.w, dtype=np.float64)
+    out = np.empty((count.shape[0], 3))
+    for i in range(count.shape[0]):
+        k = int(count[i])
+        r, c, a = pr[i, :k], pc[i, :k], pa[i, :k]
+        inside = (r >= terms.r_min) & (r <= terms.r_max)
+        r, c, a = r[inside], c[inside], a[inside]
+        e = 0.5 * ((peaks.r[:, None] - r[None, :]) / peaks.sig_r) ** 2
+        if peaks.use_cos:
+            e = e + 0.5 * ((peaks.c[:, None] - c[None, :]) / peaks.sig_c) ** 2
+        kappa = np.exp(-e)                                   # (n_meas, n_pred)
+        best_meas = kappa.max(axis=1, initial=0.0)
+        best_pred = kappa.max(axis=0, initial=0.0)
+        a_max = float(a.max(initial=0.0))
+        rel = a / a_max if a_max > 0.0 else np.zeros_like(a)
+        p = terms.p_max * np.clip((rel - terms.rel_lo) / (terms.rel_hi - terms.rel_lo), 0.0, 1.0)
+        ll = (np.sum(w * np.log(terms.eps + (1.0 - terms.eps) * best_meas))
+              + np.sum(np.log(1.0 - p * (1.0 - best_pred))))
+        explained = float(np.sum(w * best_meas) / w.sum()) if w.sum() > 0.0 else 1.0
+        heard = float(np.sum(p * best_pred) / p.sum()) if p.sum() > 0.0 else 1.0
+        out[i] = (ll, explained, heard)
+    return out

@@ -1,0 +1,312 @@
+"""The particle filter's honest status (echo model): the truth table, tracking and a kidnap on
+an ideal map, a robot outside the map's coverage, blocks without echoes, the checkpoint of
+the status state, and the settings.
+
+Blocks are the forward model's heat maps (:func:`mapping.forward.predicted_heatmap`) of the
+room's walls at the true pose of each block, scored on the room's ideal map
+(:func:`mapping.wallmap.wallmap_from_walls`); odometry is exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from localization.estimate import PoseEstimate
+from localization.particle_filter import FilterConfig, ParticleFilter
+from localization.particle_filter._filter import (  # not exported: tested directly
+    block_fit,
+    block_status,
+    propose,
+)
+from localization.sensor import (
+    SensorConfig,
+    SensorTables,
+    build_tables,
+    explanation,
+    prepare_measurement,
+)
+from mapping.forward import WallSet, predicted_heatmap
+from mapping.heatmap import HeatMap, doppler_heatmap
+from mapping.signal import SonarConfig
+from mapping.wallmap import wallmap_from_walls
+from tests.localization.helpers import trajectory
+
+FloatArray = NDArray[np.float64]
+Odometry = list[tuple[float, float]]
+DT = 1.023
+SONAR = SonarConfig()
+ECHO = SensorConfig(model="echo")
+#: A 6 m x 4 m room with its north-east corner cut, a stub from the north wall and a stub
+#: from the south wall: no symmetry.
+ROOM = np.array([[0.0, 0.0, 6.0, 0.0], [6.0, 0.0, 6.0, 2.5], [6.0, 2.5, 4.5, 4.0],
+                 [4.5, 4.0, 0.0, 4.0], [0.0, 4.0, 0.0, 0.0], [1.5, 4.0, 1.5, 3.2],
+                 [3.5, 0.0, 3.5, 0.6]])
+START = np.array([1.0, 1.2, 0.0])
+ODO: Odometry = [(0.2, 0.0)] * 4 + [(0.2, 0.3)] * 4           # straight, then a left arc
+#: Where the robot is carried to, and how it drives on from there.
+KIDNAP = np.array([4.6, 2.0, math.pi])
+KIDNAP_ODO: Odometry = [(0.2, 0.0)] * 3 + [(0.2, -0.25)] * 9
+TIGHT = np.diag([0.03**2, 0.03**2, math.radians(3.0) ** 2])
+CONFIG = FilterConfig(n_particles=1000)
+
+
+def _heatmaps(poses: FloatArray, speed_m_s: float = 0.2) -> list[HeatMap]:
+    walls = WallSet.from_array(ROOM)
+    return [predicted_heatmap(walls, p, speed_m_s, SONAR) for p in poses]
+
+
+@pytest.fixture(scope="module")
+def tables() -> SensorTables:
+    return build_tables(wallmap_from_walls(ROOM), ECHO)
+
+
+@pytest.fixture(scope="module")
+def track() -> tuple[FloatArray, list[HeatMap]]:
+    truth = trajectory(START, ODO, DT)
+    return truth, _heatmaps(truth)
+
+
+@pytest.fixture(scope="module")
+def kidnap() -> tuple[FloatArray, list[HeatMap]]:
+    """The blocks after the kidnap (the teleport itself is the first of them)."""
+    truth = trajectory(KIDNAP, KIDNAP_ODO, DT)[1:]
+    return truth, _heatmaps(truth)
+
+
+def _odometry(k: int) -> tuple[float, float, float]:
+    return (*ODO[k - 1], DT) if k > 0 else (ODO[0][0], 0.0, 0.0)
+
+
+def _tracked(tables: SensorTables, track: tuple[FloatArray, list[HeatMap]], seed: int,
+             config: FilterConfig = CONFIG) -> tuple[ParticleFilter, list[PoseEstimate]]:
+    truth, hms = track
+    pf = ParticleFilter(tables, config, np.random.default_rng(seed), pose=truth[0], cov=TIGHT)
+    return pf, [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)]
+
+
+def _error_m(est: PoseEstimate, truth: FloatArray) -> float:
+    return float(np.hypot(*(est.pose[:2] - truth[:2])))
+
+
+def _noise_block(seed: int) -> HeatMap:
+    """Eq. 1 of white noise: a block that heard no echo (no peak)."""
+    x = np.random.default_rng(seed).standard_normal(SONAR.block_samples)
+    return doppler_heatmap(x, 0.2, SONAR)
+
+
+# ---- the truth table -----------------------------------------------------------------------
+@pytest.mark.parametrize(("converged", "covered", "misfits", "lost_after", "heard", "status"), [
+    (True, True, 0, 2, True, "converged"),
+    (False, True, 0, 2, True, "uncertain"),
+    (True, False, 0, 2, True, "uncertain"),
+    (True, True, 0, 2, False, "uncertain"),
+    (True, True, 1, 2, True, "uncertain"),
+    (True, True, 2, 2, True, "lost"),
+    (True, True, 5, 2, True, "lost"),
+    (False, False, 2, 2, False, "lost"),       # lost wins over everything
+    (True, True, 2, 3, True, "uncertain"),
+    (True, True, 3, 3, True, "lost"),
+    (True, True, 1, 1, True, "lost"),
+])
+def test_block_status_truth_table(converged: bool, covered: bool, misfits: int,
+                                  lost_after: int, heard: bool, status: str) -> None:
+    assert block_status(converged, covered, misfits, lost_after, heard) == status
+
+
+# ---- the pieces the status reads -----------------------------------------------------------
+def test_block_fit_is_the_mean_of_explained_and_heard(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    truth, hms = track
+    m = prepare_measurement(hms[3], ECHO)
+    far = truth[3] + [2.5, 1.5, 2.0]
+    ex = explanation(tables, m, np.stack([truth[3], far]))
+    for i, pose in enumerate((truth[3], far)):
+        assert block_fit(tables, m, pose) == pytest.approx(
+            0.5 * (ex.explained[i] + ex.heard[i]), abs=1e-12)
+    assert block_fit(tables, m, truth[3]) >= 0.9 > CONFIG.fit_threshold > block_fit(
+        tables, m, far)
+
+
+def test_propose_replaces_that_many_particles_by_poses_explaining_the_block(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    truth, hms = track
+    m = prepare_measurement(hms[5], ECHO)
+    rng = np.random.default_rng(0)
+    poses = np.tile([5.0, 3.0, 0.0], (500, 1)) + rng.normal(0.0, 0.05, (500, 3))
+    out = propose(poses, 100, tables, m, 4, rng)
+    changed = np.any(out != poses, axis=1)
+    assert changed.sum() == 100
+    fit = explanation(tables, m, out[changed])
+    fit_before = explanation(tables, m, poses[changed])
+    assert np.median(fit.explained) > 0.6 > np.median(fit_before.explained)
+    assert np.any(np.hypot(*(out[changed, :2] - truth[5, :2]).T) < 0.1)
+    assert propose(poses, 0, tables, m, 4, rng) is poses
+
+
+# ---- tracking, then a kidnap ---------------------------------------------------------------
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tracking_converges_and_a_kidnap_is_reported_and_recovered(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]], seed: int) -> None:
+    truth, _ = track
+    pf, ests = _tracked(tables, track, seed)
+    last = ests[-1]
+    assert last.status == "converged" and last.fit >= CONFIG.fit_threshold
+    assert all(_error_m(e, p) < 0.05 for e, p in zip(ests, truth, strict=True))
+    assert sum(e.status == "converged" for e in ests) >= len(ests) - 1
+
+    k_truth, k_hms = kidnap
+    after = [pf.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
+    errors = [_error_m(e, p) for e, p in zip(after, k_truth, strict=True)]
+    statuses = [e.status for e in after]
+    assert min(i for i, s in enumerate(statuses) if s != "converged") <= 1
+    assert errors[0] > 1.0 and statuses[0] in ("uncertain", "lost")
+    assert all(s != "converged" for s, err in zip(statuses, errors, strict=True) if err > 0.3)
+    back = [i for i, err in enumerate(errors) if err < 0.2]
+    assert back and back[0] < 10, errors
+    assert errors[-1] < 0.2 and statuses[-1] == "converged"
+
+
+def test_without_relocalization_a_kidnap_stays_lost(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
+    """The control of the recovery above: without proposals the set only drifts (measured:
+    never closer than 0.37 m in 12 blocks) and says so (no ``converged``)."""
+    pf, _ = _tracked(tables, track, 0, dataclasses.replace(CONFIG, relocalize=False))
+    k_truth, k_hms = kidnap
+    after = [pf.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
+    assert all(_error_m(e, p) > 0.2 for e, p in zip(after, k_truth, strict=True))
+    assert all(e.status != "converged" for e in after)
+    assert [e.status for e in after[1:]] == ["lost"] * (len(after) - 1)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "status can be 'converged' on a near-mirror alias: kidnapped to (2.5, 3.0, -1.0), seed 1 "
+    "settles at (3.17, 2.48, -2.14), the truth mirrored about x = 3, 0.34 m off; its fit 0.68 "
+    "passes fit_threshold 0.55 although the truth fits 0.95 (17 nats better)"))
+def test_no_converged_status_on_a_near_mirror_alias(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    pf, _ = _tracked(tables, track, 1)
+    k_truth = trajectory(np.array([2.5, 3.0, -1.0]), KIDNAP_ODO, DT)[1:6]
+    for k, (pose, hm) in enumerate(zip(k_truth, _heatmaps(k_truth), strict=True)):
+        est = pf.step(hm, *KIDNAP_ODO[k], DT)
+        assert est.status != "converged" or _error_m(est, pose) <= 0.3
+
+
+# ---- coverage and silence ------------------------------------------------------------------
+def test_a_robot_outside_the_coverage_is_never_converged(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """Same run, same seed: converged on the full map, never where the map has no evidence
+    (coverage only east of x = 3; the robot drives at x 1.0-2.5)."""
+    wm = wallmap_from_walls(ROOM)
+    coverage = np.broadcast_to(wm.x_m[None, :] >= 3.0, wm.shape).copy()
+    blind = build_tables(dataclasses.replace(wm, coverage=coverage), ECHO)
+    _, full = _tracked(tables, track, 4)
+    _, ests = _tracked(blind, track, 4)
+    assert full[-1].status == "converged" and full[-1].covered
+    assert all(e.status == "uncertain" and not e.covered for e in ests)
+    assert all(e.fit >= CONFIG.fit_threshold for e in ests)      # explained, but not covered
+
+
+def test_a_block_without_echoes_is_uncertain_and_changes_no_misfit_count(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    truth, hms = track
+    pf, _ = _tracked(tables, track, 5)
+    est = pf.step(_noise_block(0), *ODO[-1], DT)
+    assert est.status == "uncertain" and math.isnan(est.fit) and pf.misfits == 0
+    assert _error_m(est, trajectory(truth[-1], ODO[-1:], DT)[1]) < 0.05
+    walls = WallSet.from_array(ROOM)
+    nxt = trajectory(truth[-1], ODO[-1:] * 2, DT)[2]
+    est = pf.step(predicted_heatmap(walls, nxt, 0.2, SONAR), *ODO[-1], DT)
+    assert est.status == "converged" and _error_m(est, nxt) < 0.05
+
+
+# ---- checkpoints ---------------------------------------------------------------------------
+def _round_trip(pf: ParticleFilter, tables: SensorTables) -> ParticleFilter:
+    buf = io.BytesIO()
+    np.savez(buf, **pf.state_dict())  # type: ignore[arg-type]
+    buf.seek(0)
+    with np.load(buf, allow_pickle=False) as npz:
+        return ParticleFilter.from_state_dict({k: npz[k] for k in npz.files}, tables)
+
+
+def _same(a: PoseEstimate, b: PoseEstimate) -> bool:
+    return bool(np.array_equal(a.pose, b.pose) and a.status == b.status
+                and (a.fit == b.fit or (math.isnan(a.fit) and math.isnan(b.fit))))
+
+
+def test_checkpoint_keeps_the_misfit_count(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
+    pf, _ = _tracked(tables, track, 6)
+    _, k_hms = kidnap
+    assert pf.step(k_hms[0], *KIDNAP_ODO[0], DT).status == "uncertain" and pf.misfits == 1
+    clone = _round_trip(pf, tables)
+    assert clone.misfits == 1 and not clone.fresh
+    forgetful = _round_trip(pf, tables)
+    forgetful.misfits = 0                            # what a checkpoint without it would do
+    a, b = pf.step(k_hms[1], *KIDNAP_ODO[1], DT), clone.step(k_hms[1], *KIDNAP_ODO[1], DT)
+    assert _same(a, b) and a.status == "lost" and pf.misfits == clone.misfits == 2
+    np.testing.assert_array_equal(pf.poses, clone.poses)
+    np.testing.assert_array_equal(pf.log_w, clone.log_w)
+    assert forgetful.step(k_hms[1], *KIDNAP_ODO[1], DT).status == "uncertain"
+
+
+def test_checkpoint_keeps_a_global_start_fresh(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """A global start proposes poses on its first block with peaks: a restored filter must
+    still do that, and then be exactly the filter that never stopped."""
+    _, hms = track
+    cfg = dataclasses.replace(CONFIG, n_particles=300, global_oversample=2)
+    pf = ParticleFilter(tables, cfg, np.random.default_rng(7))
+    assert pf.fresh
+    assert pf.step(_noise_block(1), *_odometry(0)).status == "uncertain" and pf.fresh
+    clone = _round_trip(pf, tables)
+    stale = _round_trip(pf, tables)
+    stale.fresh = False
+    assert clone.fresh and clone.misfits == 0
+    a, b, c = (f.step(hms[1], *_odometry(1)) for f in (pf, clone, stale))
+    assert _same(a, b) and not pf.fresh and not clone.fresh
+    np.testing.assert_array_equal(pf.poses, clone.poses)
+    assert not np.array_equal(pf.poses, stale.poses)
+    assert {k: v.tobytes() for k, v in pf.state_dict().items()} == {
+        k: v.tobytes() for k, v in clone.state_dict().items()}
+
+
+def test_checkpoint_without_the_status_fields_still_loads(tables: SensorTables) -> None:
+    pf = ParticleFilter(tables, dataclasses.replace(CONFIG, n_particles=50),
+                        np.random.default_rng(0), pose=START, cov=TIGHT)
+    pf.misfits, pf.fresh = 3, True
+    old: dict[str, Any] = {k: v for k, v in pf.state_dict().items()
+                           if k not in ("misfits", "fresh")}
+    clone = ParticleFilter.from_state_dict(old, tables)
+    assert clone.misfits == 0 and clone.fresh is False
+
+
+# ---- settings ------------------------------------------------------------------------------
+@pytest.mark.parametrize(("field", "value"), [
+    ("fit_threshold", -0.1), ("fit_threshold", 1.1), ("fit_threshold", math.nan),
+    ("lost_after", 0), ("lost_after", 101),
+    ("reseed_fraction", -0.1), ("reseed_fraction", 0.6),
+    ("reseed_after", 0), ("reseed_after", 1001),
+    ("proposal_candidates", 0), ("proposal_candidates", 101),
+])
+def test_status_settings_are_validated(field: str, value: float) -> None:
+    bad: dict[str, Any] = {field: value}
+    with pytest.raises(ValueError, match=f"^{field} must be"):
+        FilterConfig(**bad)
+
+
+def test_status_settings_survive_the_json_round_trip() -> None:
+    cfg = FilterConfig(fit_threshold=0.7, lost_after=3, relocalize=False, reseed_fraction=0.1,
+                       reseed_after=6, proposal_candidates=8)
+    assert FilterConfig.from_json(cfg.to_json()) == cfg
+    assert json.loads(cfg.to_json())["relocalize"] is False

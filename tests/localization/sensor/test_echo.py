@@ -1,0 +1,407 @@
+"""Tests of the echo sensor model: kernel vs its twin, geometry truth, the left/right fold, the
+range-only (stationary) case, noise blocks, data-driven proposals and the echo settings.
+
+Blocks are the forward model's heat maps (:func:`mapping.forward.predicted_heatmap`) of known
+walls, scored on the ideal map of the same walls (:func:`mapping.wallmap.wallmap_from_walls`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.typing import NDArray
+
+from localization.sensor import (
+    ECHO_NATS,
+    Measurement,
+    SensorConfig,
+    SensorTables,
+    build_tables,
+    cos_sigma,
+    echo_proposals,
+    explanation,
+    prepare_measurement,
+    score_poses,
+    uniform_free_poses,
+)
+from localization.sensor._kernels import (  # only to compare the kernel with its twin
+    _EchoPeaks,
+    _EchoTerms,
+    score_echo,
+)
+from mapping.forward import ForwardParams, WallSet, echoes, echoes_batch, predicted_heatmap
+from mapping.heatmap import doppler_heatmap
+from mapping.path import PAPER_SPEED_M_S
+from mapping.signal import SonarConfig
+from mapping.wallmap import WallMap, wallmap_from_walls
+from tests.localization.helpers import ASYMMETRIC_ROOM
+from tests.localization.sensor.naive import naive_echo
+
+FloatArray = NDArray[np.float64]
+ECHO = SensorConfig(model="echo")
+SONAR = SonarConfig()
+#: kappa below which the kernel skips a (peak, echo) pair: exp(-18)
+KAPPA_CUT = math.exp(-18.0)
+
+ASYM = ASYMMETRIC_ROOM.reshape(-1, 4)
+#: Three walls, no two parallel, open on the west: every echo is a wall or one inside corner.
+OPEN_THREE = np.array([[0.0, 0.0, 4.2, 0.3], [4.2, 0.3, 3.6, 3.2], [3.6, 3.2, 0.4, 2.8]])
+#: A corridor 2 m wide closed at x = 8: mirror symmetric about its centre line y = 1.
+CORRIDOR = np.array([[-1.0, 0.0, 8.0, 0.0], [-1.0, 2.0, 8.0, 2.0], [8.0, 0.0, 8.0, 2.0]])
+#: The same corridor with a 0.4 m stub on the north wall only: no mirror symmetry.
+CORRIDOR_STUB = np.vstack([CORRIDOR, [[4.0, 2.0, 4.0, 1.6]]])
+
+
+def _tables(walls: FloatArray, **map_kwargs: Any) -> SensorTables:
+    return build_tables(wallmap_from_walls(walls, **map_kwargs), ECHO)
+
+
+def _block(walls: FloatArray, pose: FloatArray, speed_m_s: float) -> Measurement:
+    """The echo measurement of the forward model's heat map of ``walls`` at ``pose``."""
+    hm = predicted_heatmap(WallSet.from_array(walls), np.asarray(pose, dtype=np.float64),
+                           speed_m_s, SONAR)
+    return prepare_measurement(hm, ECHO)
+
+
+@pytest.fixture(scope="module")
+def asym() -> SensorTables:
+    return _tables(ASYM)
+
+
+@pytest.fixture(scope="module")
+def open_three() -> SensorTables:
+    return _tables(OPEN_THREE)
+
+
+# ---- the kernel against its twin -----------------------------------------------------------
+def _tolerance(peaks: _EchoPeaks, terms: _EchoTerms, n_pred: int) -> float:
+    """Largest |ll| difference the kernel's cut-off (kappa < exp(-18) read as 0) can make."""
+    per_peak = (1.0 - terms.eps) * KAPPA_CUT / terms.eps
+    per_echo = terms.p_max * KAPPA_CUT / (1.0 - terms.p_max)
+    return 1e-9 + float(np.sum(peaks.w)) * per_peak + n_pred * per_echo
+
+
+def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool
+                 ) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray, _EchoPeaks,
+                            _EchoTerms]:
+    """Random poses' echoes (NaN padded past ``count``), half of them near a measured peak,
+    some outside the range window, some with negative amplitude."""
+    rng = np.random.default_rng(seed)
+    n = 6
+    meas_r = rng.uniform(0.1, 5.5, n_meas)
+    meas_c = rng.uniform(-1.0, 1.0, n_meas)
+    w = np.where(rng.random(n_meas) < 0.2, 0.0, rng.uniform(0.0, 2.0, n_meas))
+    sig_r, sig_c = float(rng.uniform(0.005, 0.1)), float(rng.uniform(0.01, 1.0))
+    peaks = _EchoPeaks(r=meas_r, c=meas_c, w=w, sig_r=sig_r, sig_c=sig_c, use_cos=use_cos)
+    lo = float(rng.uniform(0.0, 0.5))
+    terms = _EchoTerms(eps=float(rng.uniform(0.01, 0.5)), p_max=float(rng.uniform(0.0, 0.95)),
+                       rel_lo=lo, rel_hi=float(rng.uniform(lo + 0.01, 1.0)), r_min=0.15,
+                       r_max=5.0)
+    count = rng.integers(0, kmax + 1, size=n)
+    pr = rng.uniform(0.0, 6.0, (n, kmax))
+    pc = rng.uniform(-1.0, 1.0, (n, kmax))
+    if n_meas:
+        near = rng.random((n, kmax)) < 0.5
+        j = rng.integers(0, n_meas, size=(n, kmax))
+        pr = np.where(near, meas_r[j] + rng.normal(0.0, 2 * sig_r, (n, kmax)), pr)
+        pc = np.where(near, meas_c[j] + rng.normal(0.0, 2 * sig_c, (n, kmax)), pc)
+    pa = rng.uniform(-0.6, 1.0, (n, kmax))
+    pad = np.arange(kmax)[None, :] >= count[:, None]
+    pr, pc, pa = (np.where(pad, np.nan, x) for x in (pr, pc, pa))
+    return count, pr, pc, pa, peaks, terms
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_meas=st.integers(0, 7), kmax=st.integers(0, 7),
+       use_cos=st.booleans())
+def test_echo_kernel_matches_naive_twin(seed: int, n_meas: int, kmax: int,
+                                        use_cos: bool) -> None:
+    count, pr, pc, pa, peaks, terms = _random_case(seed, n_meas, kmax, use_cos)
+    got = score_echo(count, pr, pc, pa, peaks, terms)
+    want = naive_echo(count, pr, pc, pa, peaks, terms)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got[:, 0], want[:, 0], rtol=0,
+                               atol=_tolerance(peaks, terms, kmax))
+    np.testing.assert_allclose(got[:, 1:], want[:, 1:], rtol=0, atol=1e-9 + KAPPA_CUT)
+    assert np.all((got[:, 1:] >= 0.0) & (got[:, 1:] <= 1.0 + 1e-12))
+
+
+def test_echo_kernel_edge_cases() -> None:
+    """No measured peak: everything is explained (1), the expected echoes are all missed.
+    No predicted echo: every peak is clutter, nothing was expected (heard 1). Both: 0, 1, 1."""
+    terms = _EchoTerms(eps=0.05, p_max=0.9, rel_lo=0.1, rel_hi=0.4, r_min=0.15, r_max=5.0)
+    none = _EchoPeaks(r=np.zeros(0), c=np.zeros(0), w=np.zeros(0), sig_r=0.02, sig_c=0.05,
+                      use_cos=True)
+    two = _EchoPeaks(r=np.array([1.0, 2.0]), c=np.array([0.5, -0.5]), w=np.array([1.0, 2.0]),
+                     sig_r=0.02, sig_c=0.05, use_cos=True)
+    # pose 0: echoes at full and quarter level (detection 0.9 and 0.45), and one outside the
+    # range window (ignored, though the strongest); pose 1: no echo
+    count = np.array([3, 0])
+    pr = np.array([[1.0, 3.0, 7.0], [np.nan] * 3])
+    pc = np.array([[0.5, 0.0, 0.0], [np.nan] * 3])
+    pa = np.array([[0.8, 0.2, 9.0], [np.nan] * 3])
+    got = score_echo(count, pr, pc, pa, none, terms)
+    np.testing.assert_allclose(got[0], [math.log(1 - 0.9) + math.log(1 - 0.45), 1.0, 0.0],
+                               atol=1e-12)
+    np.testing.assert_allclose(got[1], [0.0, 1.0, 1.0], atol=1e-12)
+    got = score_echo(count, pr, pc, pa, two, terms)
+    # pose 0: the 1 m peak is explained exactly, the 2 m one is clutter; the 3 m echo missed
+    np.testing.assert_allclose(got[0], [2 * math.log(0.05) + math.log(1 - 0.45), 1 / 3,
+                                        0.9 / (0.9 + 0.45)], atol=1e-12)
+    np.testing.assert_allclose(got[1], [3 * math.log(0.05), 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(got, naive_echo(count, pr, pc, pa, two, terms), atol=1e-12)
+
+
+def test_explanation_matches_twin_on_forward_model_echoes(asym: SensorTables) -> None:
+    """Wiring: ``explanation`` scores the forward model's echoes of the map's walls (order and
+    range from the config), with the block's Doppler-cosine width, as the twin does."""
+    pose = np.array([1.3, 1.1, 0.4])
+    m = _block(ASYM, pose, 0.2)
+    rng = np.random.default_rng(4)
+    poses = np.vstack([pose, uniform_free_poses(asym, 200, rng)])
+    ex = explanation(asym, m, poses)
+    cfg = asym.config
+    params = ForwardParams(max_order=cfg.echo_order,
+                           max_range_m=cfg.max_range_m + 3 * cfg.range_sigma_m)
+    b = echoes_batch(asym.walls, poses, m.speed_m_s, SONAR, params)
+    assert m.peaks is not None and np.isnan(b.range_m).any()      # padding is exercised
+    peaks = m.peaks._replace(sig_c=cos_sigma(asym, m))
+    terms = _EchoTerms(eps=cfg.clutter, p_max=cfg.p_detect, rel_lo=cfg.detect_lo,
+                       rel_hi=cfg.detect_hi, r_min=cfg.min_range_m, r_max=cfg.max_range_m)
+    want = naive_echo(b.count, b.range_m, b.cos_doppler, b.amplitude, peaks, terms)
+    np.testing.assert_allclose(ex.log_likelihood, want[:, 0],
+                               atol=_tolerance(peaks, terms, b.range_m.shape[1]))
+    np.testing.assert_allclose(ex.explained, want[:, 1], atol=1e-7)
+    np.testing.assert_allclose(ex.heard, want[:, 2], atol=1e-7)
+    assert ex.n_peaks == m.n_peaks > 0
+    # the score is the log-likelihood in correlation units, NaN off the active area
+    off = np.array([[50.0, 50.0, 0.0]])
+    rho = score_poses(asym, m, np.vstack([poses[:3], off]))
+    np.testing.assert_allclose(rho[:3], 1.0 + ex.log_likelihood[:3] / ECHO_NATS, atol=1e-12)
+    assert np.isnan(rho[3])
+
+
+def test_explanation_refuses_a_measurement_of_another_model(asym: SensorTables) -> None:
+    hm = predicted_heatmap(WallSet.from_array(ASYM), [1.3, 1.1, 0.4], 0.2, SONAR)
+    m = prepare_measurement(hm, SensorConfig())
+    with pytest.raises(ValueError, match="echo"):
+        explanation(asym, m, np.zeros((1, 3)))
+
+
+# ---- geometry truth ------------------------------------------------------------------------
+def _neighbours(pose: FloatArray) -> FloatArray:
+    """``pose`` displaced by 10 cm in 8 directions and rotated by +-10 deg."""
+    a = np.linspace(0.0, 2 * np.pi, 8, endpoint=False)
+    moved = pose + np.column_stack([0.1 * np.cos(a), 0.1 * np.sin(a), np.zeros(8)])
+    turned = pose + np.array([[0.0, 0.0, math.radians(10)], [0.0, 0.0, -math.radians(10)]])
+    return np.vstack([moved, turned])
+
+
+@pytest.mark.parametrize("speed", [PAPER_SPEED_M_S, 0.2, -0.15])
+@pytest.mark.parametrize(("scene", "pose"), [
+    ("asym", (1.3, 1.1, 0.4)), ("asym", (2.44, 0.99, -2.75)), ("asym", (0.8, 1.88, 0.88)),
+    ("open_three", (2.0, 1.4, 2.2)), ("open_three", (2.9, 1.0, -0.7)),
+])
+def test_true_pose_beats_poses_10cm_or_10deg_off(
+        scene: str, pose: tuple[float, float, float], speed: float,
+        request: pytest.FixtureRequest) -> None:
+    tables: SensorTables = request.getfixturevalue(scene)
+    walls = ASYM if scene == "asym" else OPEN_THREE
+    truth = np.array(pose)
+    m = _block(walls, truth, speed)
+    ex = explanation(tables, m, np.vstack([truth, _neighbours(truth)]))
+    ll = ex.log_likelihood
+    assert m.n_peaks >= 3
+    assert np.all(ll[0] > ll[1:] + 3.0), ll[0] - ll[1:]     # >= 3 nats: a clear preference
+
+
+def test_ideal_block_is_explained_at_the_true_pose(open_three: SensorTables) -> None:
+    """At the paper's speed the true pose explains >= 90 % of the peaks and hears >= 90 %
+    of the expected echoes, at 20 random poses of a scene without parallel walls (measured:
+    >= 0.996 both)."""
+    rng = np.random.default_rng(7)
+    poses = uniform_free_poses(open_three, 400, rng)
+    poses = poses[(poses[:, 0] > 0.6) & (poses[:, 0] < 3.4) & (poses[:, 1] > 0.6)
+                  & (poses[:, 1] < 2.6)][:20]
+    assert poses.shape[0] == 20
+    for pose in poses:
+        m = _block(OPEN_THREE, pose, PAPER_SPEED_M_S)
+        ex = explanation(open_three, m, pose[None])
+        assert m.n_peaks >= 2
+        assert ex.explained[0] >= 0.9 and ex.heard[0] >= 0.9, (pose, ex)
+
+
+# ---- folded left / right -------------------------------------------------------------------
+def _mirror(pose: FloatArray) -> FloatArray:
+    """``pose`` reflected about the corridor's centre line y = 1."""
+    return np.array([pose[0], 2.0 - pose[1], -pose[2]])
+
+
+@pytest.fixture(scope="module")
+def corridors() -> dict[bool, SensorTables]:
+    """The tables of the symmetric (True) and the stub (False) corridor."""
+    return {True: _tables(CORRIDOR), False: _tables(CORRIDOR_STUB)}
+
+
+@pytest.mark.parametrize("pose", [(2.0, 1.0, 0.3), (3.0, 0.7, 0.4), (1.5, 1.3, -0.2)])
+def test_mirror_pose_scores_alike_only_in_a_mirror_symmetric_scene(
+        pose: tuple[float, float, float], corridors: dict[bool, SensorTables]) -> None:
+    """Eq. 1 only knows cos(theta): in a corridor symmetric about y = 1 the reflected pose
+    hears the same ranges and Doppler cosines and scores the same; a stub on one wall
+    breaks the tie."""
+    truth = np.array(pose)
+    for walls, symmetric in ((CORRIDOR, True), (CORRIDOR_STUB, False)):
+        tables = corridors[symmetric]
+        m = _block(walls, truth, 0.2)
+        ex = explanation(tables, m, np.stack([truth, _mirror(truth), truth + [0, 0.1, 0]]))
+        ll = ex.log_likelihood
+        assert ll[0] > ll[2] + 3.0                        # the pose is still pinned down
+        if symmetric:
+            assert abs(ll[0] - ll[1]) < 1e-9
+            assert abs(ex.explained[0] - ex.explained[1]) < 1e-9
+        else:
+            assert ll[0] > ll[1] + 3.0
+
+
+# ---- a robot standing still ----------------------------------------------------------------
+def test_stationary_block_is_range_only_and_heading_free(asym: SensorTables) -> None:
+    pose = np.array([1.3, 1.1, 0.4])
+    hm = predicted_heatmap(WallSet.from_array(ASYM), pose, 0.0, SONAR)
+    assert not hm.direction_observable
+    m = prepare_measurement(hm, ECHO)
+    assert m.peaks is not None and not m.peaks.use_cos and not m.direction_observable
+    headings = np.linspace(-np.pi, np.pi, 13)
+    for xy in ((1.3, 1.1), (2.2, 0.7)):
+        poses = np.column_stack([np.full(13, xy[0]), np.full(13, xy[1]), headings])
+        ll = explanation(asym, m, poses).log_likelihood
+        assert np.ptp(ll) <= 1e-9
+        assert np.ptp(score_poses(asym, m, poses)) <= 1e-9
+
+
+def test_stationary_block_reads_each_echo_once(asym: SensorTables) -> None:
+    pose = np.array([1.3, 1.1, 0.4])
+    m = _block(ASYM, pose, 0.0)
+    assert m.peaks is not None
+    assert np.unique(np.round(m.peaks.r, 3)).size == m.n_peaks
+    assert explanation(asym, m, pose[None]).heard[0] >= 0.5
+
+
+# ---- blocks without echoes -----------------------------------------------------------------
+def test_noise_blocks_give_no_evidence(asym: SensorTables) -> None:
+    """White noise through eq. 1 gives no peak at all (3 seeds): every pose then 'explains'
+    the block (nothing to explain, share 1 by definition) and hears none of its echoes
+    (share 0). |Gaussian| noise as a heat map gives at most a stray peak, which random poses
+    almost never explain."""
+    rng = np.random.default_rng(2)
+    poses = uniform_free_poses(asym, 300, rng)
+    for seed in range(3):
+        x = np.random.default_rng(seed).standard_normal(SONAR.block_samples)
+        hm = doppler_heatmap(x, 0.2, SONAR)
+        m = prepare_measurement(hm, ECHO)
+        assert m.n_peaks == 0
+        ex = explanation(asym, m, poses)
+        assert ex.n_peaks == 0 and np.all(ex.explained == 1.0) and np.all(ex.heard == 0.0)
+        H = np.abs(np.random.default_rng(seed).standard_normal(hm.H.shape))
+        flat = prepare_measurement(dataclasses.replace(hm, H=H), ECHO)
+        assert flat.n_peaks <= 2
+        if flat.n_peaks:
+            assert float(np.mean(explanation(asym, flat, poses).explained)) < 0.1
+
+
+# ---- proposals -----------------------------------------------------------------------------
+def test_proposals_lie_on_free_cells(asym: SensorTables) -> None:
+    m = _block(ASYM, np.array([1.3, 1.1, 0.4]), 0.2)
+    for seed in range(3):
+        p = echo_proposals(asym, m, 1500, np.random.default_rng(seed))
+        assert p.shape == (1500, 3) and np.all(asym.free_at(p[:, :2]))
+        assert np.all(np.abs(p[:, 2]) <= np.pi)
+
+
+WALL = np.array([[0.0, 0.0, 4.0, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def one_wall() -> SensorTables:
+    return _tables(WALL, margin_m=1.5)
+
+
+@pytest.mark.parametrize("speed", [0.2, -0.2])
+def test_proposals_hear_the_peak_as_the_wall_echo(one_wall: SensorTables, speed: float) -> None:
+    """One wall, one peak at range r and Doppler cosine c: the proposals stand r from the wall
+    line, over the segment, at a heading from which that wall's echo has cosine c."""
+    m = _block(WALL, np.array([1.5, 0.8, 0.5]), speed)
+    assert m.peaks is not None and m.n_peaks == 1 and m.peaks.use_cos
+    r, c = float(m.peaks.r[0]), float(m.peaks.c[0])
+    p = echo_proposals(one_wall, m, 1000, np.random.default_rng(0))
+    at_r = (np.abs(np.abs(p[:, 1]) - r) <= 0.01) & (p[:, 0] >= 0.0) & (p[:, 0] <= 4.0)
+    assert at_r.mean() >= 0.8
+    walls = WallSet.from_array(WALL)
+    for pose in p[at_r][:60]:
+        e = echoes(walls, pose, speed, SONAR)
+        assert e.k == 1 and abs(e.range_m[0] - r) < 0.01 and abs(e.cos_doppler[0] - c) < 1e-3
+    assert np.mean(explanation(one_wall, m, p[at_r]).explained) > 0.95
+
+
+def test_range_only_proposals_spread_their_headings(one_wall: SensorTables) -> None:
+    m = _block(WALL, np.array([1.5, 0.8, 0.5]), 0.0)
+    assert m.peaks is not None and not m.peaks.use_cos
+    p = echo_proposals(one_wall, m, 2000, np.random.default_rng(1))
+    at_r = np.abs(np.abs(p[:, 1]) - m.peaks.r[0]) <= 0.01
+    assert at_r.mean() >= 0.8
+    h = p[at_r, 2]
+    assert abs(np.mean(np.exp(1j * h))) < 0.1
+    counts, _ = np.histogram(h, bins=8, range=(-np.pi, np.pi))
+    assert counts.min() >= 0.08 * h.size
+
+
+def test_proposals_without_peaks_are_uniform_free_poses(asym: SensorTables) -> None:
+    x = np.random.default_rng(0).standard_normal(SONAR.block_samples)
+    m = prepare_measurement(doppler_heatmap(x, 0.2, SONAR), ECHO)
+    assert m.n_peaks == 0
+    got = echo_proposals(asym, m, 50, np.random.default_rng(3))
+    np.testing.assert_array_equal(got, uniform_free_poses(asym, 50, np.random.default_rng(3)))
+
+
+# ---- tables and settings -------------------------------------------------------------------
+def test_free_at_and_covered_read_the_nearest_cell() -> None:
+    wm = wallmap_from_walls(OPEN_THREE)
+    coverage = np.zeros(wm.shape, dtype=bool)
+    coverage[:, : wm.shape[1] // 2] = True                  # the west half only
+    tables = build_tables(dataclasses.replace(wm, coverage=coverage), ECHO)
+    x_mid = wm.x_m[wm.shape[1] // 2]
+    pts = np.array([[x_mid - 0.5, 1.5], [x_mid + 0.5, 1.5], [-20.0, 1.5]])
+    assert tables.covered(pts).tolist() == [True, False, False]
+    assert tables.free_at(pts).tolist() == [True, True, False]
+    on_wall = np.array([[2.0, 0.0 + 2.0 * 0.3 / 4.2]])       # on the south wall
+    assert not tables.free_at(on_wall)[0] and tables.covered(np.array([[1.0, 1.5]]))[0]
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("echo_order", 0), ("echo_order", 5),
+    ("range_sigma_m", 0.0), ("range_sigma_m", 1.5), ("range_sigma_m", math.nan),
+    ("cos_sigma_min", 0.0), ("cos_sigma_min", 2.5),
+    ("cos_sigma_beam", -0.1), ("cos_sigma_beam", 11.0),
+    ("clutter", 0.0), ("clutter", 1.0),
+    ("p_detect", -0.1), ("p_detect", 1.0),
+    ("detect_lo", -0.1), ("detect_lo", 0.4),
+    ("detect_hi", 1.5),
+    ("max_peaks", 0), ("max_peaks", 201),
+    ("peak_snr", -1.0), ("peak_snr", 1001.0),
+])
+def test_echo_settings_are_validated(field: str, value: float) -> None:
+    bad: dict[str, Any] = {field: value}
+    with pytest.raises(ValueError, match=f"^{field} must be"):
+        SensorConfig(model="echo", **bad)
+
+
+def test_echo_model_needs_a_map_with_walls() -> None:
+    raster_only = WallMap(G=np.zeros((40, 40)), origin_m=(0.0, 0.0), resolution_m=0.05)
+    with pytest.raises(ValueError, match="walls"):
+        build_tables(raster_only, ECHO)
+    build_tables(raster_only, SensorConfig())             # the G models do not need them
