@@ -18,7 +18,11 @@ Variants: ``echo-ideal`` (echo model, true walls), ``echo-built`` (echo model, w
 Per run and variant:
 
 * tracking: tracked start at the first true pose (prior 10 cm / 10 deg): position and heading
-  RMSE over every block, mean (and median) NEES, and ``track_metrics``;
+  RMSE of the estimate (the heaviest mode) over every block, mean (and median) NEES,
+  ``track_metrics``; ``lost`` (some block off by > 10 cm / 10 deg), ``lost_mod_sym`` (some
+  block neither within 10 cm / 10 deg nor at a symmetric image, defined below) and the share
+  of blocks where one of the *reported modes* is within 10 cm / 10 deg of the truth (a filter
+  that keeps a symmetric twin alive may report the twin as its heaviest mode);
 * global start over ``--seeds`` seeds: success = within 10 cm / 10 deg from block 8 on and
   staying, raw and modulo symmetry: a block also counts when the estimate lies within
   10 cm / 10 deg of a *symmetric image*, a pose whose forward-model echoes (true walls, order
@@ -370,6 +374,7 @@ class Trace:
     wall_s: FloatArray
     cpu_s: FloatArray
     feed: Feed
+    modes: list[FloatArray]             # per block: the reported modes' means (m, 3)
 
     @property
     def err(self) -> tuple[FloatArray, FloatArray]:
@@ -378,7 +383,7 @@ class Trace:
 
 def drive(pf: ParticleFilter, feed: Feed) -> Trace:
     """Step ``pf`` through ``feed``, timing each ``step``."""
-    poses, covs, status, fit, wall, cpu = [], [], [], [], [], []
+    poses, covs, status, fit, wall, cpu, modes = [], [], [], [], [], [], []
     for k in range(feed.n):
         t0, c0 = time.perf_counter(), time.process_time()
         est = pf.step(feed.hms[k], float(feed.v[k]), float(feed.w[k]), float(feed.dt[k]))
@@ -388,8 +393,9 @@ def drive(pf: ParticleFilter, feed: Feed) -> Trace:
         covs.append(est.cov)
         status.append(est.status)
         fit.append(est.fit)
+        modes.append(np.array([m.mean for m in est.modes]).reshape(-1, 3))
     return Trace(np.array(poses), np.array(covs), status, np.array(fit), np.array(wall),
-                 np.array(cpu), feed)
+                 np.array(cpu), feed, modes)
 
 
 def confidently_wrong(tr: Trace, images: Images) -> dict[str, Any]:
@@ -427,17 +433,34 @@ def tracking_trial(tables: SensorTables, feed: Feed, n: int, images: Images) -> 
     m = track_metrics(tr.poses, tr.covs, feed.truth)
     nv = np.array([nees(p, c, t) for p, c, t in zip(tr.poses, tr.covs, feed.truth,
                                                     strict=True)])
+    ok = (pos <= TOL_M) & (head <= TOL_RAD)
+    in_modes = [bool(ok[k]) or _any_mode_within(tr.modes[k], feed.truth[k])
+                for k in range(feed.n)]
+    at_image = [bool(ok[k]) or images.near_image(tr.poses[k], feed.truth[k],
+                                                 float(feed.true_speed[k]), TOL_M, TOL_RAD)
+                for k in range(feed.n)]
     return {
         "position_rmse_m": float(np.sqrt(np.mean(pos**2))),
         "heading_rmse_deg": math.degrees(float(np.sqrt(np.mean(head**2)))),
         "nees_mean": float(np.mean(nv)), "nees_median": float(np.median(nv)),
         "max_position_error_m": float(pos.max()),
         "lost": bool(np.any((pos > TOL_M) | (head > TOL_RAD))),
+        "lost_mod_sym": not all(at_image),
+        "share_within_tol": float(np.mean(ok)),
+        "share_truth_among_modes": float(np.mean(in_modes)),
         "track_metrics": dataclasses.asdict(m),
         "status": status_counts(tr.status),
         "fit_mean": float(np.nanmean(tr.fit)) if np.isfinite(tr.fit).any() else math.nan,
         "confidently_wrong": confidently_wrong(tr, images),
     }, tr
+
+
+def _any_mode_within(means: FloatArray, truth: FloatArray) -> bool:
+    """Whether one of the reported modes lies within 10 cm / 10 deg of the truth."""
+    if means.shape[0] == 0:
+        return False
+    pos, head = errors(means, np.broadcast_to(truth, means.shape))
+    return bool(np.any((pos <= TOL_M) & (head <= TOL_RAD)))
 
 
 def global_trial(tables: SensorTables, feed: Feed, n: int, seed: int, images: Images
@@ -658,6 +681,9 @@ def summarize_variant(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
                                                             for t in tr]))),
         "tracking_nees_median_of_means": float(np.median([t["nees_mean"] for t in tr])),
         "tracking_lost_runs": int(sum(t["lost"] for t in tr)),
+        "tracking_lost_runs_mod_sym": int(sum(t["lost_mod_sym"] for t in tr)),
+        "tracking_share_truth_among_modes": float(np.mean([t["share_truth_among_modes"]
+                                                           for t in tr])),
         "global_trials": len(gl),
         "global_success": float(np.mean([g["success"] for g in gl])) if gl else math.nan,
         "global_success_mod_sym": float(np.mean([g["success_mod_sym"] for g in gl]))
@@ -680,6 +706,7 @@ def run_line(name: str, variant: str, e: dict[str, Any]) -> str:
     rec = [k["blocks_to_recover"] for k in kd]
     return (f"{name:<22} {variant:<11} rmse {100 * t['position_rmse_m']:6.1f} cm "
             f"{t['heading_rmse_deg']:5.1f} deg nees {t['nees_mean']:8.1f} "
+            f"modes {100 * t['share_truth_among_modes']:3.0f}% "
             f"glob {sum(g['success'] for g in gl)}/{len(gl)} "
             f"sym {sum(g['success_mod_sym'] for g in gl)}/{len(gl)} "
             f"kid {['-' if r is None else r for r in rec]} "
@@ -751,6 +778,17 @@ def write_json(path: Path, obj: Any) -> None:
     atomic_write(path, lambda fh: fh.write(data), private=False)
 
 
+def source_digest() -> str:
+    """SHA-1 of the library's source (``localization/``, ``mapping/``): which code was
+    measured, without git; a change during the run is flagged."""
+    h = hashlib.sha1()
+    for pkg in ("localization", "mapping"):
+        for f in sorted((ROOT / pkg).rglob("*.py")):
+            h.update(str(f.relative_to(ROOT)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 def environment() -> dict[str, Any]:
     import numba
 
@@ -769,7 +807,9 @@ def print_summary(summary: dict[str, Any], search_summary: dict[str, Any]) -> No
         cw = sv["confidently_wrong"]
         print(f"{name:<22} runs {sv['runs']} (failed {sv['failed_runs']}): tracking rmse "
               f"{100 * sv['tracking_position_rmse_m']:.1f} cm "
-              f"{sv['tracking_heading_rmse_deg']:.1f} deg, lost {sv['tracking_lost_runs']}; "
+              f"{sv['tracking_heading_rmse_deg']:.1f} deg, lost {sv['tracking_lost_runs']} "
+              f"(mod sym {sv['tracking_lost_runs_mod_sym']}, truth among modes "
+              f"{100 * sv['tracking_share_truth_among_modes']:.0f}%); "
               f"global {sv['global_success']:.2f} (mod sym {sv['global_success_mod_sym']:.2f});"
               f" kidnap {sv['kidnap_recovered']}/{sv['kidnap_trials']}; confidently wrong "
               f"{cw['wrong']}/{cw['blocks']} (mod sym {cw['wrong_mod_sym']}); "
@@ -800,6 +840,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--search-blocks", type=int, default=None,
                     help="one-block searches per run and map (4; -1: every eligible block)")
     ap.add_argument("--sweep-seeds", type=int, default=None, help="seeds in the sweep (2)")
+    ap.add_argument("--resume", action="store_true",
+                    help="reuse the runs of out/localization_echo/partial.json written with the "
+                    "same settings (after an interrupted run)")
     args = ap.parse_args(argv)
     quick = bool(args.quick)
     seeds = args.seeds if args.seeds is not None else (1 if quick else 3)
@@ -812,6 +855,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     t_start = time.perf_counter()
     env_start = environment()
     settings = {
+        "library_source_sha1": source_digest(),
+        "benchmark_sha1": hashlib.sha1(Path(__file__).read_bytes()).hexdigest(),
         "quick": quick, "seeds": seeds, "kidnap_trials": kidnaps, "search_blocks": search_cap,
         "sweep_seeds": sweep_seeds, "particle_counts": list(counts),
         "particles": N_PARTICLES, "variants": [list(v) for v in VARIANTS],
@@ -857,9 +902,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     # per run: every variant, then the one-block searches
     rows: list[dict[str, Any]] = []
     by_variant: dict[str, list[dict[str, Any]]] = {v[0]: [] for v in VARIANTS}
+    partial = CACHE / ("partial_quick.json" if quick else "partial.json")
+    done: dict[str, dict[str, Any]] = {}
+    if args.resume and partial.exists():
+        old = json.loads(partial.read_text())
+        if old.get("settings") == json.loads(json.dumps(json_safe(settings))):
+            done = {r["run"]: r | {"resumed": True} for r in old.get("runs", [])}
+        print(f"resume: {len(done)} runs reused from {partial}", flush=True)
     print(f"\n{len(loc_runs)} localized runs, {N_PARTICLES} particles, {seeds} global seeds, "
           f"{kidnaps} kidnaps", flush=True)
     for lr in tqdm(loc_runs, desc="runs", unit="run"):
+        if lr.name in done:
+            rows.append(done[lr.name])
+            for variant, old_e in done[lr.name]["variants"].items():
+                by_variant[variant].append(old_e)
+                tqdm.write(run_line(lr.name, variant, old_e) + " (resumed)")
+            continue
         others = [o for o in loc_runs if o.case.name == lr.case.name and o is not lr]
         targets = kidnap_targets(lr, others, kidnaps)
         img = images[lr.case.name]
@@ -895,8 +953,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                            f" (mod sym {sr['ok_mod_sym']}), eligible {sr['eligible']}"
                            f"/{sr['moving_every_3rd']}")
         rows.append(row)
-        write_json(CACHE / ("partial_quick.json" if quick else "partial.json"),
-                   {"settings": settings, "scenes": scenes_out, "runs": rows})
+        row["library_unchanged"] = source_digest() == settings["library_source_sha1"]
+        if not row["library_unchanged"]:
+            tqdm.write("WARNING: the library source changed since the start of this run")
+        write_json(partial, {"settings": settings, "scenes": scenes_out, "runs": rows})
 
     # cost vs accuracy
     avail = [lr for lr in loc_runs if all(not isinstance(tables_of[lr.case.name][v], str)
@@ -941,8 +1001,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                  for b in blocks),
             "seconds_median": float(np.median([b["seconds"] for b in blocks]))
             if blocks else math.nan}
+    digest_end = source_digest()
+    if digest_end != settings["library_source_sha1"]:
+        print("WARNING: the library source (localization/, mapping/) changed during the run: "
+              "the results mix two versions", flush=True)
     result = {
         "benchmark": "localization_echo",
+        "library_source_sha1_end": digest_end,
+        "library_changed_during_run": digest_end != settings["library_source_sha1"],
         "environment": {"start": env_start, "end": environment()},
         "settings": settings, "scenes": scenes_out, "runs": rows, "summary": summary,
         "one_block_search": search_summary,
