@@ -13,7 +13,10 @@ anything with the filters' ``step`` (`ParticleFilter`, the grid filter).
 Entry points: `FilterConfig` (every parameter, with its unit and measured effect) and
 `ParticleFilter`. With the echo sensor model each step also reports an honest status
 (`block_fit`: how well the estimate explains the block; `block_status`: converged / uncertain /
-lost) and re-localizes on unexplained blocks with poses that explain them (`propose`).
+lost) and re-localizes on unexplained blocks with poses that explain them (`propose`,
+`propose_slots`). A filter started from a tracked pose stays *anchored* until its estimate
+`jumped` away from dead reckoning: while anchored, the room's symmetric twins are no rivals
+and whole-map proposals carry the prior odds of a kidnap (``FilterConfig.kidnap_prior_nats``).
 
 Notes
 -----
@@ -36,9 +39,11 @@ from localization.particle_filter._filter import (
     init_global,
     init_tracked,
     inject,
+    jumped,
     kld_count,
     predict,
     propose,
+    propose_slots,
     resample,
     run_filter,
     temper_to_ess,
@@ -57,9 +62,11 @@ __all__ = [
     "init_global",
     "init_tracked",
     "inject",
+    "jumped",
     "kld_count",
     "predict",
     "propose",
+    "propose_slots",
     "resample",
     "run_filter",
     "temper_to_ess",

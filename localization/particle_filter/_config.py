@@ -77,7 +77,10 @@ class FilterConfig:
         Echo model: on an unexplained block, replace a share of the particles by poses that
         explain the block (:func:`localization.sensor.echo_proposals`, picked by
         likelihood): ``reseed_fraction`` on the first, twice that once lost, all of them
-        after ``reseed_after`` unexplained blocks in a row (a global re-seed).
+        after ``reseed_after`` unexplained blocks in a row (a global re-seed). An anchored
+        filter (below) re-seeds near its estimate on the first unexplained block, and once
+        lost replaces at most twice ``reseed_fraction`` by proposals from the whole map that
+        carry the prior odds of a kidnap (``kidnap_prior_nats``).
     reseed_fraction : float
         Share replaced on the first unexplained block.
     reseed_after : int
@@ -85,6 +88,11 @@ class FilterConfig:
     proposal_candidates : int
         Proposals scored per particle replaced (and per particle of a global start's first
         block, of which half are proposals).
+    anchor_gate_m, anchor_gate_deg : float
+        While the filter is anchored (tracked start, never lost since), the proposals of a
+        re-seed before it is lost stay within this distance and heading of the estimate: a
+        block the estimate explains poorly does not open the door to a symmetric look-alike
+        the motion so far rules out. Once lost, proposals come from the whole map.
     twin_margin_nats : float
         Echo model: a symmetric twin of the estimate (its image under a symmetry of the
         walls, :func:`localization.sensor.wall_symmetries`) is a *rival* while the evidence
@@ -126,6 +134,9 @@ class FilterConfig:
     reseed_fraction: float = 0.25
     reseed_after: int = 4
     proposal_candidates: int = 4
+    anchor_gate_m: float = 0.5
+    anchor_gate_deg: float = 30.0
+    kidnap_prior_nats: float = 5.0
     twin_margin_nats: float = 3.0
     twin_memory: float = 0.8
     twin_fraction: float = 0.05
@@ -167,6 +178,14 @@ class FilterConfig:
         if not 1 <= self.proposal_candidates <= 100:
             raise ValueError(
                 f"proposal_candidates must be in [1, 100], got {self.proposal_candidates}")
+        if not 0 < self.anchor_gate_m <= 100:
+            raise ValueError(f"anchor_gate_m must be in (0, 100], got {self.anchor_gate_m}")
+        if not 0 < self.anchor_gate_deg <= 180:
+            raise ValueError(
+                f"anchor_gate_deg must be in (0, 180], got {self.anchor_gate_deg}")
+        if not 0 <= self.kidnap_prior_nats <= 100:
+            raise ValueError(
+                f"kidnap_prior_nats must be in [0, 100], got {self.kidnap_prior_nats}")
         if not 0 <= self.twin_margin_nats <= 1000:
             raise ValueError(
                 f"twin_margin_nats must be in [0, 1000], got {self.twin_margin_nats}")

@@ -190,24 +190,56 @@ def inject(poses: FloatArray, n_inject: int, tables: SensorTables,
 
 
 def propose(poses: FloatArray, n_replace: int, tables: SensorTables, measurement: Measurement,
-            candidates: int, rng: np.random.Generator) -> FloatArray:
+            candidates: int, rng: np.random.Generator,
+            gate: tuple[FloatArray, float, float] | None = None) -> FloatArray:
     """Replace ``n_replace`` random particles by poses that explain the block: ``candidates``
     times as many :func:`~localization.sensor.echo_proposals` are scored and the replacements
-    drawn among them in proportion to their (floored) likelihood."""
+    drawn among them in proportion to their (floored) likelihood.
+
+    ``gate = (pose, radius_m, radius_rad)`` keeps only proposals that close to ``pose`` (an
+    anchored filter's local re-seed); with none inside it the particles stay as they are.
+    """
+    return propose_slots(poses, n_replace, tables, measurement, candidates, rng, gate)[0]
+
+
+def propose_slots(poses: FloatArray, n_replace: int, tables: SensorTables,
+                  measurement: Measurement, candidates: int, rng: np.random.Generator,
+                  gate: tuple[FloatArray, float, float] | None = None
+                  ) -> tuple[FloatArray, NDArray[np.int64]]:
+    """:func:`propose`, also returning the indices of the replaced particles."""
+    none = np.zeros(0, dtype=np.int64)
     n_replace = min(int(n_replace), poses.shape[0])
     if n_replace <= 0:
-        return poses
+        return poses, none
     out = poses.copy()
     slots = rng.choice(poses.shape[0], size=n_replace, replace=False)
     cand = echo_proposals(tables, measurement, candidates * n_replace, rng)
     ll = pose_log_likelihood(tables, measurement, cand, floor=True)
     ll = np.where(np.isfinite(ll), ll, -np.inf)
+    if gate is not None:
+        centre, radius_m, radius_rad = gate
+        near = ((np.hypot(cand[:, 0] - centre[0], cand[:, 1] - centre[1]) <= radius_m)
+                & (np.abs(wrap_angle(cand[:, 2] - centre[2])) <= radius_rad))
+        ll = np.where(near, ll, -np.inf)
+        if not np.isfinite(ll).any():
+            return poses, none
     if not np.isfinite(ll).any():
         out[slots] = init_global(tables, n_replace, rng)
-        return out
+        return out, slots.astype(np.int64)
     pick = resampling.systematic_resample(np.exp(ll - ll.max()), rng, n_replace)
     out[slots] = cand[rng.permutation(pick)]
-    return out
+    return out, slots.astype(np.int64)
+
+
+def jumped(previous: FloatArray | None, estimate: FloatArray, speed_m_s: float,
+           yaw_rate_rad_s: float, dt_s: float, gate_m: float, gate_rad: float) -> bool:
+    """Whether ``estimate`` lies farther than the gate from where odometry (dead reckoning)
+    carried the ``previous`` estimate (None: no previous estimate, no jump)."""
+    if previous is None or not np.all(np.isfinite(previous)):
+        return False
+    pred = motion.predict_mean(previous, speed_m_s, yaw_rate_rad_s, dt_s)
+    d = math.hypot(float(estimate[0] - pred[0]), float(estimate[1] - pred[1]))
+    return d > gate_m or abs(float(wrap_angle(estimate[2] - pred[2]))) > gate_rad
 
 
 _STENCIL = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0],
@@ -304,6 +336,8 @@ class ParticleFilter:
         self.n_steps = 0
         self.misfits = 0
         self.fresh = False
+        self.anchored = False
+        self.last_pose: FloatArray | None = None
         self.twin_gap = np.zeros(0)
         if pose is None:
             self.reset_global()
@@ -322,6 +356,8 @@ class ParticleFilter:
         self.converged = False
         self.misfits = 0
         self.fresh = True
+        self.anchored = False
+        self.last_pose = None
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -331,6 +367,8 @@ class ParticleFilter:
         self.log_w_slow = self.log_w_fast = -np.inf
         self.misfits = 0
         self.fresh = False
+        self.anchored = True
+        self.last_pose = None
         c = np.asarray(cov, dtype=np.float64)
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -399,12 +437,19 @@ class ParticleFilter:
             updated=meas is not None, model="none" if meas is None else meas.model,
             likelihood_scale=scale)
         misfits, fit = self.misfits, math.nan
+        gate_rad = math.radians(cfg.anchor_gate_deg)
+        anchored = self.anchored and not jumped(self.last_pose, estimate.pose, speed_m_s,
+                                                yaw_rate_rad_s, dt_s, cfg.anchor_gate_m,
+                                                gate_rad)
         rivals = np.zeros((0, 3))
         twin_gap = self.twin_gap
         if echo and meas is not None and meas.n_peaks:
             fit = block_fit(self.tables, meas, estimate.pose)
             misfits = misfits + 1 if fit < cfg.fit_threshold else 0
-            twins = symmetric_poses(self.tables.symmetries, estimate.pose)
+            # a symmetric twin is a rival only when the prior does not rule it out: a tracked
+            # start followed without a jump pins the robot to one side of the symmetry
+            twins = (np.zeros((0, 3)) if anchored
+                     else symmetric_poses(self.tables.symmetries, estimate.pose))
             if twins.shape[0]:
                 twin_gap = twin_evidence(self.tables, meas, estimate.pose, twins,
                                          self.twin_gap, cfg.twin_memory)
@@ -438,12 +483,31 @@ class ParticleFilter:
                 share = (1.0 if misfits >= cfg.reseed_after
                          else min(2.0 * cfg.reseed_fraction, 1.0) if misfits >= cfg.lost_after
                          else cfg.reseed_fraction)
-                poses = propose(poses, int(round(share * n_out)), self.tables, meas,
-                                cfg.proposal_candidates, self.rng)
+                if anchored and misfits < cfg.lost_after:
+                    # near the estimate: a poor block is no reason to look elsewhere
+                    poses = propose(poses, int(round(share * n_out)), self.tables, meas,
+                                    cfg.proposal_candidates, self.rng,
+                                    (estimate.pose, cfg.anchor_gate_m, gate_rad))
+                elif anchored:
+                    # lost while anchored: the whole map, at the prior odds of a kidnap,
+                    # and the tracked hypothesis keeps the rest of the particles
+                    share = min(share, 2.0 * cfg.reseed_fraction)
+                    poses, slots = propose_slots(poses, int(round(share * n_out)),
+                                                 self.tables, meas, cfg.proposal_candidates,
+                                                 self.rng)
+                    if slots.size and cfg.kidnap_prior_nats > 0:
+                        log_w = log_w.copy()
+                        log_w[slots] -= cfg.kidnap_prior_nats
+                        log_w, _ = resampling.normalize_log_weights(log_w)
+                else:
+                    poses = propose(poses, int(round(share * n_out)), self.tables, meas,
+                                    cfg.proposal_candidates, self.rng)
         self.poses, self.log_w = poses, log_w
         self.log_w_slow, self.log_w_fast = slow, fast
         self.n_steps += 1
         self.misfits = misfits
+        self.anchored = anchored
+        self.last_pose = estimate.pose.copy()
         self.twin_gap = twin_gap
         if meas is not None:
             self.converged = estimate.converged and misfits == 0
@@ -463,6 +527,9 @@ class ParticleFilter:
             "converged": np.array(self.converged),
             "misfits": np.array(self.misfits, dtype=np.int64),
             "fresh": np.array(self.fresh),
+            "anchored": np.array(self.anchored),
+            "last_pose": (np.full(3, np.nan) if self.last_pose is None
+                          else np.asarray(self.last_pose, dtype=np.float64).copy()),
             "twin_gap": np.asarray(self.twin_gap, dtype=np.float64).copy(),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
@@ -490,6 +557,10 @@ class ParticleFilter:
         pf.converged = bool(state["converged"]) if "converged" in state else False
         pf.misfits = int(state["misfits"]) if "misfits" in state else 0
         pf.fresh = bool(state["fresh"]) if "fresh" in state else False
+        pf.anchored = bool(state["anchored"]) if "anchored" in state else False
+        last = (np.array(state["last_pose"], dtype=np.float64) if "last_pose" in state
+                else np.full(3, np.nan))
+        pf.last_pose = last if last.shape == (3,) and np.all(np.isfinite(last)) else None
         pf.twin_gap = (np.array(state["twin_gap"], dtype=np.float64) if "twin_gap" in state
                        else np.zeros(0))
         return pf

@@ -54,6 +54,11 @@ class SensorConfig:
         term of the correlation is a sparse dot product.
     echo_order : int
         Echo model: reflection orders predicted (1..4; 2 = walls and inside corners).
+    right_corner_tol_deg : float
+        Echo model: walls sharing an end at an angle within this of 90 deg are a right
+        corner, heard once at its vertex (a fitted corner is never exactly square, and its
+        exact image paths split or vanish: ``ForwardParams.right_corner_tol_deg``); 0 keeps
+        the exact image paths.
     range_sigma_m : float
         Echo model: range tolerance of a predicted echo (map error plus peak position).
     cos_sigma_min, cos_sigma_beam : float
@@ -88,6 +93,7 @@ class SensorConfig:
     range_gain_exponent: float = 1.0
     keep_fraction: float = 0.10
     echo_order: int = 2
+    right_corner_tol_deg: float = 3.0
     range_sigma_m: float = 0.02
     cos_sigma_min: float = 0.03
     cos_sigma_beam: float = 0.5
@@ -129,6 +135,7 @@ class SensorConfig:
         echo_checks = (
             ("echo_order", "an integer in 1..4",
              isinstance(self.echo_order, int) and self.echo_order in (1, 2, 3, 4)),
+            ("right_corner_tol_deg", "in [0, 45] deg", 0 <= self.right_corner_tol_deg <= 45),
             ("range_sigma_m", "in (0, 1] m", 0 < self.range_sigma_m <= 1),
             ("cos_sigma_min", "in (0, 2]", 0 < self.cos_sigma_min <= 2),
             ("cos_sigma_beam", "in [0, 10]", 0 <= self.cos_sigma_beam <= 10),

@@ -93,6 +93,7 @@ def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArra
         raise ValueError("measurement was not prepared for model 'echo' (no peaks)")
     peaks = measurement.peaks._replace(sig_c=cos_sigma(tables, measurement))
     params = ForwardParams(max_order=tables.config.echo_order,
+                           right_corner_tol_deg=tables.config.right_corner_tol_deg,
                            max_range_m=tables.config.max_range_m + 3 * tables.config.range_sigma_m)
     if tables.walls.n == 0:
         n = poses.shape[0]

@@ -9,12 +9,16 @@ from the signal (`point_spread`, `drift_samples`: no blur parameter); `predicted
 does both. `echoes_batch` gives many poses in one call (numba, parallel over poses) for the
 particle filter. `required_order` says how many reflection orders a scene needs;
 `match_echoes` and `heatmap_correlation` check a prediction against a measured map.
+A fitted map's near-right corners are heard once at their vertex when
+``ForwardParams.right_corner_tol_deg`` > 0 (`right_corners`, `shared_vertices`,
+`vertex_paths`).
 
 Notes
 -----
 Private modules: ``_echoes`` (`WallSet`, `ForwardParams`, `Echoes`, `EchoBatch`, the
 wrappers), ``_render`` (point-spread tables and rendering), ``_order`` (`required_order`),
-``_compare`` (peak matching, correlation), ``_kernels`` (the numba kernels: path enumeration
+``_compare`` (peak matching, correlation), ``_corners`` (right corners at the vertex),
+``_kernels`` (the numba kernels: path enumeration
 and tracing, rendering; their numpy twins are in ``tests/mapping/forward/naive.py``).
 """
 
@@ -26,6 +30,7 @@ from mapping.forward._compare import (
     local_maxima,
     match_echoes,
 )
+from mapping.forward._corners import right_corners, shared_vertices, vertex_paths
 from mapping.forward._echoes import (
     DEFAULT_PARAMS,
     MAX_ORDER,
@@ -75,4 +80,7 @@ __all__ = [
     "psf_tables",
     "render_heatmap",
     "required_order",
+    "right_corners",
+    "shared_vertices",
+    "vertex_paths",
 ]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mapping.forward._corners import regularize_corners, right_corners
 from mapping.forward._kernels import _batch_echoes, _Limits, _Out, _single_echoes, _Walls
 from mapping.signal import SonarConfig, checked_speed_m_s
 
@@ -101,12 +102,22 @@ class ForwardParams:
         One-way range cap (half the round trip); None is the unambiguous range c P / (2 fs).
     min_amplitude : float
         Drop echoes whose |amplitude| is below this (heat-map units).
+    right_corner_tol_deg : float
+        0 (default): exact image paths only. > 0: walls sharing an end (within
+        ``corner_join_m``) at an angle within this many degrees of 90 are a right corner,
+        heard as one retro-reflection at the vertex instead of their exact order-2 paths,
+        which a fitted corner a fraction of a degree off splits or loses
+        (:mod:`mapping.forward._corners`). For fitted maps; the simulator keeps 0.
+    corner_join_m : float
+        How close two wall ends must be to count as one vertex.
     """
 
     max_order: int = 2
     spreading: str = "3d"
     max_range_m: float | None = None
     min_amplitude: float = 0.0
+    right_corner_tol_deg: float = 0.0
+    corner_join_m: float = 0.05
 
     def __post_init__(self) -> None:
         if not isinstance(self.max_order, int | np.integer) or not 1 <= self.max_order <= MAX_ORDER:
@@ -124,6 +135,13 @@ class ForwardParams:
         if not (math.isfinite(self.min_amplitude) and self.min_amplitude >= 0):
             raise ValueError(
                 f"ForwardParams.min_amplitude must be >= 0, got {self.min_amplitude!r}")
+        if not (math.isfinite(self.right_corner_tol_deg)
+                and 0 <= self.right_corner_tol_deg <= 45):
+            raise ValueError("ForwardParams.right_corner_tol_deg must be in [0, 45], "
+                             f"got {self.right_corner_tol_deg!r}")
+        if not (math.isfinite(self.corner_join_m) and 0 <= self.corner_join_m <= 1):
+            raise ValueError(
+                f"ForwardParams.corner_join_m must be in [0, 1], got {self.corner_join_m!r}")
 
 
 #: The default limits (order 2, 3-D spreading, the unambiguous range, no amplitude floor).
@@ -316,7 +334,9 @@ def echoes(
     p = np.asarray(pose, dtype=np.float64)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise ValueError(f"pose must be 3 finite numbers (x, y, heading), got {pose!r}")
-    batch = _to_batch(_run(walls, p[None].copy(), lim, single=True), params.spreading)
+    out = _corners_regularized(_run(walls, p[None].copy(), lim, single=True), walls, p[None],
+                               lim, params)
+    batch = _to_batch(out, params.spreading)
     return batch.echoes_of(0)
 
 
@@ -344,7 +364,27 @@ def echoes_batch(
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise ValueError(f"poses must be finite with shape (n, 3), got shape {p.shape}")
-    return _to_batch(_run(walls, np.ascontiguousarray(p), lim, single=False), params.spreading)
+    out = _run(walls, np.ascontiguousarray(p), lim, single=False)
+    return _to_batch(_corners_regularized(out, walls, p, lim, params), params.spreading)
+
+
+def _corners_regularized(out: _Out, walls: WallSet, poses: FloatArray, lim: _Limits,
+                         params: ForwardParams) -> _Out:
+    """``out`` with right corners heard at their vertex (``params.right_corner_tol_deg``)."""
+    if params.right_corner_tol_deg <= 0 or walls.n < 2 or lim.max_order < 2:
+        return out
+    corners = right_corners(walls.segments_m, params.right_corner_tol_deg,
+                            params.corner_join_m)
+    if not corners:
+        return out
+    fields = {"count": out.n_found, "path_m": out.path_m, "cos_doppler": out.cos_doppler,
+              "amplitude": out.amplitude, "order": out.order, "walls": out.walls,
+              "points": out.points, "bearing": out.bearing}
+    f = regularize_corners(fields, walls.segments_m, np.asarray(walls.strength, float), poses,
+                           corners, lim.speed_m_s, lim.sound_speed_m_s, lim.spreading_power,
+                           lim.max_path_m, lim.min_amplitude)
+    return _Out(f["count"], f["path_m"], f["cos_doppler"], f["amplitude"], f["order"],
+                f["walls"], f["points"], f["bearing"])
 
 
 def _to_batch(out: _Out, spreading: str) -> EchoBatch:

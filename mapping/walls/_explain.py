@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.forward import ForwardParams, WallSet, echoes_batch
+from mapping.forward import ForwardParams, WallSet, echoes_batch, shared_vertices, vertex_paths
 from mapping.signal import SonarConfig
 from mapping.walls._peaks import PeakObservations
 
@@ -51,20 +51,6 @@ def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
     return np.asarray(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
 
 
-def shared_vertices(walls: WallSet, tol_m: float = 0.05
-                    ) -> list[tuple[int, int, NDArray[np.float64]]]:
-    """Pairs of walls with an end each within ``tol_m`` of the other: (i, j, vertex)."""
-    seg = walls.segments_m
-    out = []
-    for i in range(walls.n):
-        for j in range(i + 1, walls.n):
-            for ei in range(2):
-                for ej in range(2):
-                    if np.hypot(*(seg[i, ei] - seg[j, ej])) <= tol_m:
-                        out.append((i, j, 0.5 * (seg[i, ei] + seg[j, ej])))
-    return out
-
-
 def vertex_echoes(walls: WallSet, poses: NDArray[np.float64],
                   must_use: int = -1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Retro-reflection at shared vertices of inside corners: (range, cos) per pose (n, m).
@@ -73,53 +59,17 @@ def vertex_echoes(walls: WallSet, poses: NDArray[np.float64],
     (range ``|C - p|``, Doppler of the direction to C). A fitted corner is never exactly
     90 deg, and the exact image paths of a corner a fraction of a degree off either vanish
     or split; this keeps the echo the sonar hears. Valid where the pose lies inside the
-    convex wedge of the two walls and the line of sight to C is clear.
+    convex wedge of the two walls and the line of sight to C is clear
+    (:func:`mapping.forward.vertex_paths`); NaN elsewhere.
     """
-    corners = [v for v in shared_vertices(walls) if must_use < 0 or must_use in v[:2]]
-    n = poses.shape[0]
-    r = np.full((n, len(corners)), np.nan)
-    c = np.full((n, len(corners)), np.nan)
-    seg = walls.segments_m
-    p = poses[:, :2]
-    for m, (i, j, C) in enumerate(corners):
-        ea = _far_end(seg[i], C) - C
-        eb = _far_end(seg[j], C) - C
-        k = float(_cross(ea, eb))
-        if abs(k) < 1e-9:
-            continue
-        q = p - C
-        inside = (_cross(np.broadcast_to(ea, q.shape), q) * k > 0) & \
-                 (_cross(q, np.broadcast_to(eb, q.shape)) * k > 0)
-        clear = ~_blocked_to(p, C, seg, exclude=(i, j))
-        d = np.hypot(q[:, 0], q[:, 1])
-        bearing = np.arctan2(-q[:, 1], -q[:, 0])
-        ok = inside & clear
-        r[ok, m] = d[ok]
-        c[ok, m] = np.cos(bearing - poses[:, 2])[ok]
-    return r, c
-
-
-def _far_end(seg: NDArray[np.float64], C: NDArray[np.float64]) -> NDArray[np.float64]:
-    d0, d1 = np.hypot(*(seg[0] - C)), np.hypot(*(seg[1] - C))
-    return np.asarray(seg[1] if d0 < d1 else seg[0])
-
-
-def _blocked_to(p: NDArray[np.float64], C: NDArray[np.float64], seg: NDArray[np.float64],
-                exclude: tuple[int, int]) -> NDArray[np.bool_]:
-    """Whether a wall other than ``exclude`` crosses the leg from each p to C."""
-    out = np.zeros(p.shape[0], dtype=bool)
-    r = C - p
-    for w in range(seg.shape[0]):
-        if w in exclude:
-            continue
-        a, d = seg[w, 0], seg[w, 1] - seg[w, 0]
-        den = _cross(r, np.broadcast_to(d, r.shape))
-        q = a - p
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = _cross(q, np.broadcast_to(d, r.shape)) / den
-            u = _cross(q, r) / den
-        out |= (np.abs(den) > 1e-15) & (s > 1e-9) & (s < 1 - 1e-9) & (u >= 0) & (u <= 1)
-    return out
+    corners = [v for v in shared_vertices(walls.segments_m)
+               if must_use < 0 or must_use in v[:2]]
+    dist, ok = vertex_paths(walls.segments_m, poses, corners)
+    c = np.full(dist.shape, np.nan)
+    for m, (_, _, vertex) in enumerate(corners):
+        bearing = np.arctan2(vertex[1] - poses[:, 1], vertex[0] - poses[:, 0])
+        c[:, m] = np.cos(bearing - poses[:, 2])
+    return np.where(ok, dist, np.nan), np.where(ok, c, np.nan)
 
 
 def occluded(obs: PeakObservations, normal_rad: float, walls: WallSet) -> BoolArray:
