@@ -7,7 +7,9 @@ Pearson correlation ``rho`` of the two. Three models (`Model`): ``correlation`` 
 (range profile only; heading-free, used automatically when the robot is too slow for the
 Doppler bank) score against G; ``echo`` is the physical model on the map's walls (the
 forward model's echoes against the heat map's peaks, `explanation`), scored in the same
-units (``rho = 1 + ll / ECHO_NATS``). The likelihood is tempered and floored,
+units (``rho = 1 + ll / ECHO_NATS``); it reads the map's own uncertainty, each echo's range
+widened by its walls' fit sigma (`map_range_sigma`) and free wall ends known only to their
+endpoint sigma (`soft_end_walls`, `end_weights`). The likelihood is tempered and floored,
 ``log((1 - z_rand) exp(beta (rho - rho_best)) + z_rand)``.
 
 Entry points: `SensorConfig`; `build_tables` (`SensorTables`: lookup tables of one map) and
@@ -31,7 +33,13 @@ from localization.sensor._config import (
     Model,
     SensorConfig,
 )
-from localization.sensor._echo import Explanation, cos_sigma, echo_proposals, explanation
+from localization.sensor._echo import (
+    Explanation,
+    cos_sigma,
+    echo_proposals,
+    explanation,
+    map_range_sigma,
+)
 from localization.sensor._measurement import (
     Measurement,
     prepare_measurement,
@@ -51,8 +59,10 @@ from localization.sensor._scoring import (
 from localization.sensor._tables import (
     SensorTables,
     build_tables,
+    end_weights,
     free_space_mask,
     resolve_model,
+    soft_end_walls,
     symmetric_poses,
     uniform_free_poses,
     wall_symmetries,
@@ -63,7 +73,10 @@ __all__ = [
     "Explanation",
     "cos_sigma",
     "echo_proposals",
+    "end_weights",
     "explanation",
+    "map_range_sigma",
+    "soft_end_walls",
     "Measurement",
     "Model",
     "OFF_MAP_PENALTY",

@@ -36,8 +36,8 @@ from numpy.typing import NDArray
 from localization.sensor import _kernels as _k
 from localization.sensor._config import ECHO_NATS
 from localization.sensor._measurement import Measurement
-from localization.sensor._tables import SensorTables, uniform_free_poses
-from mapping.forward import ForwardParams, echoes_batch
+from localization.sensor._tables import SensorTables, end_weights, uniform_free_poses
+from mapping.forward import EchoBatch, ForwardParams, echoes_batch
 
 FloatArray = NDArray[np.float64]
 
@@ -74,6 +74,27 @@ def cos_sigma(tables: SensorTables, measurement: Measurement) -> float:
     return float(min(max(cfg.cos_sigma_min, cfg.cos_sigma_beam * beam), 2.0))
 
 
+def map_range_sigma(tables: SensorTables, batch: EchoBatch) -> FloatArray | None:
+    """The map's 1-sigma range uncertainty of each predicted echo (n, kmax), None for a map
+    without one (ideal walls).
+
+    Per wall the path bounces on, the normal offset ``o`` and the angle ``a`` of the fit
+    (``WallMap.wall_sigma``) move the echo by ``o`` and by ``s a``, ``s`` the distance of
+    the bounce point from the wall's middle (the fit turns about its centre of mass, which
+    the middle stands in for); independent terms add in quadrature.
+    """
+    ws = tables.wall_sigma
+    if ws.shape[0] != tables.walls.n or not np.any(ws[:, :2] > 0):
+        return None
+    seg = tables.walls.segments_m
+    mid = 0.5 * (seg[:, 0] + seg[:, 1])
+    valid = batch.walls >= 0
+    wi = np.where(valid, batch.walls, 0)
+    along = np.hypot(*(np.nan_to_num(batch.points_m) - mid[wi]).transpose(3, 0, 1, 2))
+    var = np.where(valid, ws[wi, 0] ** 2 + (along * ws[wi, 1]) ** 2, 0.0).sum(axis=2)
+    return np.asarray(np.sqrt(var))
+
+
 def _terms(tables: SensorTables) -> _k._EchoTerms:
     cfg = tables.config
     return _k._EchoTerms(eps=cfg.clutter, p_max=cfg.p_detect, rel_lo=cfg.detect_lo,
@@ -101,9 +122,11 @@ def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArra
         empty = np.zeros((n, 0))
         out = _k.score_echo(count, empty, empty, empty, peaks, _terms(tables))
     else:
-        b = echoes_batch(tables.walls, poses, measurement.speed_m_s, tables.sonar, params)
-        out = _k.score_echo(b.count, b.range_m, b.cos_doppler, b.amplitude, peaks,
-                            _terms(tables))
+        run_on, end_sigma = tables.soft_ends
+        b = echoes_batch(run_on, poses, measurement.speed_m_s, tables.sonar, params)
+        level = b.amplitude * end_weights(tables.walls, end_sigma, b.walls, b.points_m)
+        out = _k.score_echo(b.count, b.range_m, b.cos_doppler, level, peaks,
+                            _terms(tables), map_range_sigma(tables, b))
     return Explanation(log_likelihood=out[:, 0], explained=out[:, 1], heard=out[:, 2],
                        n_peaks=measurement.n_peaks)
 

@@ -193,13 +193,15 @@ class _EchoTerms(NamedTuple):
 @numba.njit(**NUMBA_FLAGS)
 def _echo_kernel(
     count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
-    pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms, out: NDArray[np.float64],
+    pa: NDArray[np.float64], ps: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
+    out: NDArray[np.float64],
 ) -> None:
     """Echo log-likelihood of each pose, and how much each pose explains.
 
     Pose i predicts ``count[i]`` echoes (range ``pr``, Doppler cosine ``pc``, amplitude
-    ``pa``); the block measured peaks ``m``. With ``kappa_jk = exp(-(dr/sig_r)^2/2
-    - (dc/sig_c)^2/2)`` (the cosine term only when ``m.use_cos``):
+    ``pa``, the map's range uncertainty ``ps`` in m); the block measured peaks ``m``. With
+    ``kappa_jk = exp(-(dr/s_k)^2/2 - (dc/sig_c)^2/2)``, ``s_k = sqrt(sig_r^2 + ps_k^2)``
+    (the cosine term only when ``m.use_cos``):
 
         ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk)           measured peaks
            + sum_k log(1 - p_k (1 - max_j kappa_jk))                  predicted echoes
@@ -232,8 +234,9 @@ def _echo_kernel(
             if r < t.r_min or r > t.r_max:
                 continue
             bk = 0.0
+            s_k = math.sqrt(m.sig_r * m.sig_r + ps[i, k] * ps[i, k])
             for j in range(n_meas):
-                d = (m.r[j] - r) / m.sig_r
+                d = (m.r[j] - r) / s_k
                 e = 0.5 * d * d
                 if m.use_cos:
                     dc = (m.c[j] - pc[i, k]) / m.sig_c
@@ -260,11 +263,15 @@ def _echo_kernel(
 
 
 def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
-               pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms) -> NDArray[np.float64]:
-    """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0)."""
+               pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
+               map_sigma: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0;
+    ``map_sigma`` None: no map uncertainty)."""
     out = np.empty((count.shape[0], 3), dtype=np.float64)
+    ps = np.zeros_like(pr) if map_sigma is None else map_sigma
     _echo_kernel(np.ascontiguousarray(count, dtype=np.int64),
                  np.ascontiguousarray(np.nan_to_num(pr), dtype=np.float64),
                  np.ascontiguousarray(np.nan_to_num(pc), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64), m, t, out)
+                 np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64),
+                 np.ascontiguousarray(np.nan_to_num(ps), dtype=np.float64), m, t, out)
     return out

@@ -11,6 +11,7 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
+from scipy.special import ndtr
 
 from localization.sensor._config import Model, SensorConfig
 from localization.sensor._kernels import _ScoreTables
@@ -54,6 +55,9 @@ class SensorTables:
         The sonar the echo model predicts for (carrier, block length, sound speed).
     coverage : ndarray bool, shape (ny, nx)
         Cells where the map has evidence (``WallMap.coverage``).
+    wall_sigma : ndarray, shape (n_walls, 3)
+        1-sigma uncertainty of each wall (``WallMap.wall_sigma``: normal offset m, angle
+        rad, endpoints m), 0 where the map has none (an ideal map).
     """
 
     config: SensorConfig
@@ -74,6 +78,13 @@ class SensorTables:
     walls: WallSet = field(default_factory=lambda: WallSet.from_array(np.zeros((0, 4))))
     sonar: SonarConfig = field(default_factory=SonarConfig)
     coverage: NDArray[np.bool_] | None = None
+    wall_sigma: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @cached_property
+    def soft_ends(self) -> tuple[WallSet, FloatArray]:
+        """The walls with free ends run on, and each end's sigma (:func:`soft_end_walls`),
+        computed once."""
+        return soft_end_walls(self.walls, self.wall_sigma)
 
     @cached_property
     def symmetries(self) -> FloatArray:
@@ -191,6 +202,7 @@ def build_tables(
         walls=_relative_walls(wall_map),
         sonar=SonarConfig() if sonar is None else sonar,
         coverage=np.asarray(wall_map.coverage, dtype=bool),
+        wall_sigma=np.nan_to_num(np.asarray(wall_map.wall_sigma, dtype=np.float64).reshape(-1, 3)),
     )
 
 
@@ -264,6 +276,63 @@ def _relative_walls(wall_map: WallMap) -> WallSet:
     s = np.asarray(wall_map.wall_strength, dtype=np.float64)
     top = float(s.max()) if s.size else 0.0
     return WallSet.from_array(wall_map.walls_m, s / top if top > 0 else np.ones_like(s))
+
+
+def soft_end_walls(walls: WallSet, wall_sigma: FloatArray, join_m: float = 0.05,
+                   reach: float = 2.5) -> tuple[WallSet, FloatArray]:
+    """Walls whose free ends (no other wall's end within ``join_m``) are run on by ``reach``
+    times their endpoint sigma (``wall_sigma[:, 2]``), and the sigma of each end (n, 2; 0
+    for a joined end or a map without one).
+
+    A fitted wall's free end is known only to its endpoint sigma (where the specular point
+    left the observed stretch). The echo model predicts the run-on walls and weighs each
+    bounce by the probability that the wall reaches it (:func:`end_weights`), so a pose
+    near the end of a wall is neither forced to hear it nor forbidden to.
+    """
+    seg = np.asarray(walls.segments_m, dtype=np.float64).reshape(-1, 2, 2)
+    n = seg.shape[0]
+    sig = np.zeros((n, 2))
+    if n == 0 or wall_sigma.shape != (n, 3):
+        return walls, sig
+    ends = seg.reshape(-1, 2)
+    d = np.hypot(*(ends[:, None, :] - ends[None, :, :]).transpose(2, 0, 1))
+    own = np.repeat(np.arange(n), 2)
+    d[own[:, None] == own[None, :]] = np.inf
+    free = (d.min(axis=1) > join_m).reshape(n, 2)
+    sig = np.where(free, np.nan_to_num(wall_sigma[:, 2])[:, None], 0.0)
+    u = seg[:, 1] - seg[:, 0]
+    length = np.hypot(u[:, 0], u[:, 1])
+    u = u / np.maximum(length, 1e-12)[:, None]
+    out = seg.copy()
+    out[:, 0] -= reach * sig[:, 0:1] * u
+    out[:, 1] += reach * sig[:, 1:2] * u
+    return WallSet(out, walls.strength), sig
+
+
+def end_weights(walls: WallSet, end_sigma: FloatArray, wall_idx: NDArray[np.int64],
+                points_m: FloatArray) -> FloatArray:
+    """Probability that the fitted wall reaches each bounce point: for the bounce on wall
+    w at P, ``Phi(s0 / sigma0) Phi(s1 / sigma1)`` with ``s0, s1`` the distances from P to
+    the fitted ends of ``walls`` (not run on) along it, positive inside; 1 for joined ends.
+    Product over a path's bounces; ``wall_idx`` (..., K) with -1 padding, ``points_m``
+    (..., K, 2)."""
+    if not np.any(end_sigma > 0):
+        return np.ones(wall_idx.shape[:-1])
+    seg = np.asarray(walls.segments_m, dtype=np.float64)
+    valid = wall_idx >= 0
+    wi = np.where(valid, wall_idx, 0)
+    a, b = seg[wi, 0], seg[wi, 1]
+    sig0 = end_sigma[wi, 0]
+    sig1 = end_sigma[wi, 1]
+    length = np.hypot(*(b - a).transpose(-1, *range(b.ndim - 1)))
+    u = (b - a) / np.maximum(length, 1e-12)[..., None]
+    p = np.nan_to_num(points_m)
+    s0 = np.sum((p - a) * u, axis=-1)
+    s1 = np.sum((b - p) * u, axis=-1)
+    w = np.ones(s0.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(sig0 > 0, ndtr(s0 / sig0), w) * np.where(sig1 > 0, ndtr(s1 / sig1), 1.0)
+    return np.asarray(np.where(valid, w, 1.0).prod(axis=-1))
 
 
 def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:

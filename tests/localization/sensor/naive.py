@@ -87,12 +87,13 @@ def score_poses_numpy(tables: SensorTables, measurement: Measurement,
 
 
 def naive_echo(count: NDArray[np.int64], pr: FloatArray, pc: FloatArray, pa: FloatArray,
-               peaks: _EchoPeaks, terms: _EchoTerms) -> FloatArray:
+               peaks: _EchoPeaks, terms: _EchoTerms,
+               map_sigma: FloatArray | None = None) -> FloatArray:
     """Twin of the echo kernel ``score_echo``: (n, 3) of (ll, explained, heard) per pose.
 
     Straight from the kernel's docstring, one pose at a time with dense (peak, echo) arrays:
-    ``kappa_jk = exp(-(dr/sig_r)^2/2 - (dc/sig_c)^2/2)`` (range only without ``use_cos``)
-    over the predicted echoes in ``[r_min, r_max]``;
+    ``kappa_jk = exp(-(dr/s_k)^2/2 - (dc/sig_c)^2/2)``, ``s_k^2 = sig_r^2 + map_sigma_k^2``
+    (range only without ``use_cos``) over the predicted echoes in ``[r_min, r_max]``;
     ``ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk) + sum_k log(1 - p_k (1 - max_j
     kappa_jk))`` with ``p_k = p_max clip((a_k / a_max - rel_lo) / (rel_hi - rel_lo), 0, 1)``
     (``a_max`` the pose's strongest echo in the window, ``p_k = 0`` if none is positive);
@@ -106,9 +107,11 @@ def naive_echo(count: NDArray[np.int64], pr: FloatArray, pc: FloatArray, pa: Flo
     for i in range(count.shape[0]):
         k = int(count[i])
         r, c, a = pr[i, :k], pc[i, :k], pa[i, :k]
+        ms = np.zeros(k) if map_sigma is None else map_sigma[i, :k]
         inside = (r >= terms.r_min) & (r <= terms.r_max)
-        r, c, a = r[inside], c[inside], a[inside]
-        e = 0.5 * ((peaks.r[:, None] - r[None, :]) / peaks.sig_r) ** 2
+        r, c, a, ms = r[inside], c[inside], a[inside], ms[inside]
+        s_k = np.sqrt(peaks.sig_r**2 + ms**2)
+        e = 0.5 * ((peaks.r[:, None] - r[None, :]) / s_k[None, :]) ** 2
         if peaks.use_cos:
             e = e + 0.5 * ((peaks.c[:, None] - c[None, :]) / peaks.sig_c) ** 2
         kappa = np.exp(-e)                                   # (n_meas, n_pred)

@@ -25,9 +25,12 @@ from localization.sensor import (
     build_tables,
     cos_sigma,
     echo_proposals,
+    end_weights,
     explanation,
+    map_range_sigma,
     prepare_measurement,
     score_poses,
+    soft_end_walls,
     uniform_free_poses,
 )
 from localization.sensor._kernels import (  # only to compare the kernel with its twin
@@ -119,12 +122,14 @@ def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool
 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_meas=st.integers(0, 7), kmax=st.integers(0, 7),
-       use_cos=st.booleans())
+       use_cos=st.booleans(), with_map_sigma=st.booleans())
 def test_echo_kernel_matches_naive_twin(seed: int, n_meas: int, kmax: int,
-                                        use_cos: bool) -> None:
+                                        use_cos: bool, with_map_sigma: bool) -> None:
     count, pr, pc, pa, peaks, terms = _random_case(seed, n_meas, kmax, use_cos)
-    got = score_echo(count, pr, pc, pa, peaks, terms)
-    want = naive_echo(count, pr, pc, pa, peaks, terms)
+    ms = (np.random.default_rng(seed + 1).uniform(0.0, 0.05, pr.shape) if with_map_sigma
+          else None)
+    got = score_echo(count, pr, pc, pa, peaks, terms, ms)
+    want = naive_echo(count, pr, pc, pa, peaks, terms, ms)
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got[:, 0], want[:, 0], rtol=0,
                                atol=_tolerance(peaks, terms, kmax))
@@ -405,3 +410,37 @@ def test_echo_model_needs_a_map_with_walls() -> None:
     with pytest.raises(ValueError, match="walls"):
         build_tables(raster_only, ECHO)
     build_tables(raster_only, SensorConfig())             # the G models do not need them
+
+
+# ---- the map's own uncertainty -------------------------------------------------------------
+def test_map_range_sigma_adds_offset_and_angle_in_quadrature() -> None:
+    """One wall along y = 0 from x = 0 to 4 (middle x = 2), offset sigma 1 cm, angle sigma
+    5 mrad: a bounce 1.5 m from the middle is uncertain by sqrt(0.01^2 + (1.5 * 0.005)^2)."""
+    wm = wallmap_from_walls(np.array([[0.0, 0.0, 4.0, 0.0]]))
+    wm = dataclasses.replace(wm, wall_sigma=np.array([[0.01, 0.005, 0.0]]))
+    tables = build_tables(wm, SensorConfig(model="echo"))
+    b = echoes_batch(tables.walls, np.array([[3.5, 1.0, 0.0], [2.0, 1.0, 0.0]]), 0.1, SONAR,
+                     ForwardParams(max_order=1))
+    sig = map_range_sigma(tables, b)
+    assert sig is not None
+    assert sig[0, 0] == pytest.approx(math.hypot(0.01, 1.5 * 0.005))
+    assert sig[1, 0] == pytest.approx(0.01)
+    ideal = build_tables(wallmap_from_walls(np.array([[0.0, 0.0, 4.0, 0.0]])),
+                         SensorConfig(model="echo"))
+    assert map_range_sigma(ideal, b) is None
+
+
+def test_soft_ends_run_free_ends_on_and_weigh_bounces_by_the_end_sigma() -> None:
+    """An L of two walls joined at (0, 0) with free ends at (4, 0) and (0, 3), endpoint
+    sigma 10 cm: only the free ends move (by 2.5 sigma), and a bounce exactly at a free end
+    counts one half, 2 sigma inside 0.977, 1 sigma outside 0.159."""
+    walls = WallSet.from_array(np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 3.0, 0.0, 0.0]]))
+    run_on, sig = soft_end_walls(walls, np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.1]]))
+    np.testing.assert_allclose(sig, [[0.0, 0.1], [0.1, 0.0]])
+    np.testing.assert_allclose(run_on.segments_m, [[[0.0, 0.0], [4.25, 0.0]],
+                                                   [[0.0, 3.25], [0.0, 0.0]]])
+    idx = np.array([[0, -1], [0, -1], [0, -1], [1, 0]])
+    pts = np.array([[[4.0, 0.0], [np.nan, np.nan]], [[3.8, 0.0], [np.nan, np.nan]],
+                    [[4.1, 0.0], [np.nan, np.nan]], [[0.0, 2.9], [2.0, 0.0]]])
+    w = end_weights(walls, sig, idx, pts)
+    np.testing.assert_allclose(w, [0.5, 0.97725, 0.15866, 0.84134], atol=1e-4)
