@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import weakref
 from typing import Any
 
 import numpy as np
@@ -28,7 +29,7 @@ from localization.sensor import (
 from mapping.heatmap import HeatMap, doppler_heatmap
 from mapping.signal import SonarConfig
 from service.mapstore import MapStore, map_config
-from service.sessions import BlockInput, FilterSpec, InvalidSpec
+from service.sessions import BlockInput, FilterSpec, InvalidSpec, MapChanged
 
 
 def block_heatmap(block: BlockInput, config: SonarConfig) -> HeatMap | None:
@@ -52,10 +53,16 @@ class Localizer:
     def __init__(self, filt: ParticleFilter | GridFilter, tables: SensorTables,
                  config: SonarConfig) -> None:
         self.filter, self.tables, self.config = filt, tables, config
+        self.base_tables = tables  # the map's shared tables (kept alive while in use)
+        # the live view (service.routers.view) sets keep_heatmap while someone watches
+        self.keep_heatmap = False
+        self.last_heatmap: HeatMap | None = None
 
     def update(self, block: BlockInput) -> PoseEstimate:
-        return self.filter.step(block_heatmap(block, self.config), block.speed_m_s,
-                                block.yaw_rate_rad_s, block.dt_s)
+        hm = block_heatmap(block, self.config)
+        if self.keep_heatmap:
+            self.last_heatmap = hm
+        return self.filter.step(hm, block.speed_m_s, block.yaw_rate_rad_s, block.dt_s)
 
     def reinit_global(self) -> None:
         self.filter.reset_global()
@@ -92,32 +99,39 @@ class LocalizationFactory:
     def __init__(self, maps: MapStore, sensor: SensorConfig | None = None) -> None:
         self.maps = maps
         self.sensor = sensor or SensorConfig(model="echo")
-        self._tables: dict[str, tuple[int, SensorTables, SonarConfig]] = {}
+        # weak: a map's tables live as long as some session holds them, then are released
+        self._tables: weakref.WeakValueDictionary[tuple[str, str], SensorTables]
+        self._tables = weakref.WeakValueDictionary()
         self._lock = threading.Lock()
 
-    def tables(self, map_id: str) -> tuple[SensorTables, SonarConfig]:
-        """Lookup tables and sonar config of ``map_id`` (cached per loaded map object)."""
-        wallmap = self.maps.get(map_id)
+    def tables(self, map_id: str, sha256: str | None = None) -> tuple[SensorTables, SonarConfig]:
+        """Lookup tables and sonar config of ``map_id`` (shared per map content while in
+        use); :class:`~service.sessions.MapChanged` if the file's SHA-256 is not ``sha256``."""
+        wallmap, digest = self.maps.load(map_id)
+        if sha256 is not None and digest != sha256:
+            raise MapChanged(map_id, f"map {map_id!r} was replaced since the session started "
+                             f"(sha256 {sha256[:12]}... -> {digest[:12]}...)")
+        sonar = map_config(wallmap)
         with self._lock:
-            hit = self._tables.get(map_id)
-            if hit is None or hit[0] != id(wallmap):
-                sonar = map_config(wallmap)
+            tables = self._tables.get((map_id, digest))
+            if tables is None:
                 model = resolve_model(wallmap, "auto") if self.sensor.model == "echo" \
                     else self.sensor.model
                 sensor = dataclasses.replace(self.sensor, model=model)
-                hit = (id(wallmap), build_tables(wallmap, sensor, sonar=sonar), sonar)
-                self._tables[map_id] = hit
-            return hit[1], hit[2]
+                tables = build_tables(wallmap, sensor, sonar=sonar)
+                self._tables[(map_id, digest)] = tables
+            return tables, sonar
 
     def _session_tables(self, map_id: str, spec: FilterSpec
-                        ) -> tuple[SensorTables, SonarConfig]:
+                        ) -> tuple[SensorTables, SonarConfig, SensorTables]:
         """The map's tables, with the session's own sharpness if it asked for one (beta does
         not enter the tables, so this is a cheap copy of the config only)."""
-        tables, config = self.tables(map_id)
+        base, config = self.tables(map_id, spec.map_sha256)
+        tables = base
         if spec.beta is not None:
-            sensor = dataclasses.replace(tables.config, beta=float(spec.beta))
-            tables = dataclasses.replace(tables, config=sensor)
-        return tables, config
+            sensor = dataclasses.replace(base.config, beta=float(spec.beta))
+            tables = dataclasses.replace(base, config=sensor)
+        return tables, config, base
 
     def create(self, map_id: str, spec: FilterSpec) -> Localizer:
         """A new localizer; :class:`~service.sessions.InvalidSpec` names the field the filter
@@ -125,7 +139,7 @@ class LocalizationFactory:
         if spec.kind not in ("pf", "grid"):
             raise InvalidSpec("filter", f"filter must be 'pf' or 'grid', got {spec.kind!r}",
                               "pf or grid")
-        tables, config = self._session_tables(map_id, spec)
+        tables, config, base = self._session_tables(map_id, spec)
         pose = None if spec.initial_pose is None else np.asarray(spec.initial_pose)
         cov = None if spec.initial_covariance is None else np.asarray(spec.initial_covariance)
         if spec.kind == "grid":
@@ -134,15 +148,23 @@ class LocalizationFactory:
                 raise InvalidSpec("filter", f"filter 'grid' needs {n_states} states on map "
                                   f"{map_id!r}", f"<= {MAX_GRID_STATES} states (else 'pf')")
             try:
-                return Localizer(GridFilter(tables, None, pose, cov), tables, config)
+                return _pinned(base, Localizer(GridFilter(tables, None, pose, cov), tables,
+                                              config))
             except np.linalg.LinAlgError:
                 raise InvalidSpec("initial_covariance", "initial_covariance must be invertible "
                                   "for filter 'grid'", "a positive definite 3x3") from None
         rng = np.random.default_rng(spec.seed)
         pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles), rng, pose, cov)
-        return Localizer(pf, tables, config)
+        return _pinned(base, Localizer(pf, tables, config))
 
     def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> Localizer:
-        tables, config = self._session_tables(map_id, spec)
+        tables, config, base = self._session_tables(map_id, spec)
         cls = GridFilter if spec.kind == "grid" else ParticleFilter
-        return Localizer(cls.from_state_dict(state, tables), tables, config)
+        return _pinned(base, Localizer(cls.from_state_dict(state, tables), tables, config))
+
+
+def _pinned(base: SensorTables, localizer: Localizer) -> Localizer:
+    """Let ``localizer`` hold the map's shared tables (a session with its own beta holds a
+    copy with another config, which alone would let the shared cache entry go)."""
+    localizer.base_tables = base
+    return localizer

@@ -9,10 +9,18 @@ row-major, with the planar entries filled and z/roll/pitch zero, as AMCL publish
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+import re
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    field_validator,
+    model_validator,
+)
 
 #: Identifiers of maps, sessions and run files: safe as file names.
 ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
@@ -27,7 +35,7 @@ MAX_COORD_M = 1.0e4
 
 #: Allowed values of the main request fields, quoted in 422 bodies.
 FIELD_RANGES = {
-    "seq": f"integer 0..{MAX_SEQ}, greater than the last committed seq",
+    "seq": "integer, last committed seq + 1 .. + OMNISONAR_MAX_SEQ_GAP (first: 0 .. gap)",
     "fs_hz": "the map's sampling rate (40000 for Table 1)",
     "speed_m_s": f"finite, -{MAX_SPEED_M_S} <= speed_m_s <= {MAX_SPEED_M_S}",
     "yaw_rate_rad_s": f"finite, -{MAX_YAW_RATE_RAD_S} <= yaw_rate_rad_s <= {MAX_YAW_RATE_RAD_S}",
@@ -44,7 +52,32 @@ Yaw = Annotated[float, Field(ge=-2 * math.pi, le=2 * math.pi, allow_inf_nan=Fals
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Request bodies: unknown fields refused, no coercion (``"2000"`` is not a number,
+    ``"yes"`` not a boolean, ``true`` not an integer)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+_INT_TEXT = re.compile(r"[0-9]{1,19}")
+_FLOAT_TEXT = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?")
+
+
+def _plain_int(v: Any) -> Any:
+    """Query text of an integer: decimal digits only (no ``1_0``, sign, space or ``true``)."""
+    if isinstance(v, str) and not _INT_TEXT.fullmatch(v):
+        raise ValueError("must be written with decimal digits only")
+    return v
+
+
+def _plain_float(v: Any) -> Any:
+    """Query text of a number: decimal or exponent notation (no ``1_0``, space, ``nan``)."""
+    if isinstance(v, str) and not _FLOAT_TEXT.fullmatch(v):
+        raise ValueError("must be a decimal number (e.g. 0.25 or 4e4)")
+    return v
+
+
+#: Validator of an integer query parameter: decimal digits only.
+PlainInt = BeforeValidator(_plain_int)
 
 
 class Pose2D(_Strict):
@@ -79,6 +112,7 @@ class MapInfo(BaseModel):
     provenance: dict[str, object]
     sonar: dict[str, object]
     size_bytes: int
+    sha256: str = Field(description="SHA-256 of the stored file; sessions pin it")
 
 
 class MapList(BaseModel):
@@ -128,7 +162,7 @@ class SessionCreate(_Strict):
         None, gt=0, le=100_000, description="sensor sharpness for this session (default: the "
         "server's, 200); `omnisonar calibrate` picks an honest one per map")
 
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
 
     @field_validator("initial_covariance")
     @classmethod
@@ -207,6 +241,8 @@ class Estimate(BaseModel):
 class SessionInfo(BaseModel):
     id: str
     map_id: str
+    map_sha256: str | None = Field(None, description="SHA-256 of the map file the session "
+                                   "runs on (an overwritten map never changes it)")
     filter: Literal["pf", "grid"]
     particles: int
     seed: int
@@ -220,12 +256,14 @@ class SessionInfo(BaseModel):
     estimate: Estimate | None
 
 
-Seq = Annotated[int, Field(ge=0, le=MAX_SEQ, description="strictly increasing per session")]
+Seq = Annotated[int, Field(ge=0, le=MAX_SEQ, description="increasing per session: each block "
+                          "last+1 .. last+OMNISONAR_MAX_SEQ_GAP (first: 0 .. the gap)")]
 FsHz = Annotated[float, Field(gt=0, allow_inf_nan=False, description="must equal the map's fs")]
 Speed = Annotated[float, Field(ge=-MAX_SPEED_M_S, le=MAX_SPEED_M_S, allow_inf_nan=False,
                                description="m/s, forward positive")]
 YawRate = Annotated[float, Field(ge=-MAX_YAW_RATE_RAD_S, le=MAX_YAW_RATE_RAD_S,
                                  allow_inf_nan=False, description="rad/s, counter-clockwise")]
+_QF = BeforeValidator(_plain_float)
 Encoding = Literal["float32", "int16"]
 
 
@@ -236,10 +274,10 @@ class BlockQuery(BaseModel):
     is missing); a JSON block carries them in its body and takes no query parameters.
     """
 
-    seq: Seq | None = None
-    fs_hz: FsHz | None = None
-    speed_m_s: Speed | None = None
-    yaw_rate_rad_s: YawRate = 0.0
+    seq: Annotated[Seq | None, BeforeValidator(_plain_int)] = None
+    fs_hz: Annotated[FsHz | None, _QF] = None
+    speed_m_s: Annotated[Speed | None, _QF] = None
+    yaw_rate_rad_s: Annotated[YawRate, _QF] = 0.0
     encoding: Encoding = Field("float32", description="float32, or int16 (full scale 32768)")
 
 

@@ -22,15 +22,30 @@ from service.settings import Settings
 
 
 def serve(maps_dir: Path | None = None, host: str = "127.0.0.1", port: int = 8000,
-          log_level: str = "info") -> None:
-    """Run the service with uvicorn until interrupted (settings from OMNISONAR_* vars)."""
+          log_level: str = "info", insecure: bool = False) -> None:
+    """Run the service with uvicorn until interrupted (settings from OMNISONAR_* vars).
+
+    Raises
+    ------
+    RuntimeError
+        ``host`` is not a loopback address and no API keys are configured (and neither
+        ``insecure`` nor ``OMNISONAR_ALLOW_INSECURE``): see :mod:`service.auth`.
+    """
     import uvicorn
 
     from service.app import create_app
+    from service.auth import KeyRing, check_bind
+    from service.slowclients import uvicorn_options
 
-    settings = Settings() if maps_dir is None else Settings(maps_dir=maps_dir)
+    update: dict[str, object] = {"host": host}
+    if maps_dir is not None:
+        update["maps_dir"] = maps_dir
+    if insecure:
+        update["allow_insecure"] = True
+    settings = Settings(**update)  # type: ignore[arg-type]
+    check_bind(settings, KeyRing.from_settings(settings))
     uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level,
-                timeout_graceful_shutdown=5)
+                **uvicorn_options(settings))
 
 
 def free_port(host: str = "127.0.0.1") -> int:

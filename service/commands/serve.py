@@ -20,13 +20,21 @@ def add_serve(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=int, default=8000, help="TCP port")
     p.add_argument("--log-level", default="info", help="uvicorn log level")
+    p.add_argument("--insecure", action="store_true",
+                   help="serve a non-loopback address without API keys (trusted networks "
+                   "only; default: refuse)")
     p.set_defaults(func=_cmd_serve)
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
     from service.server import serve
 
-    serve(None if args.maps is None else Path(args.maps), args.host, args.port, args.log_level)
+    try:
+        serve(None if args.maps is None else Path(args.maps), args.host, args.port,
+              args.log_level, args.insecure)
+    except RuntimeError as exc:
+        print(f"omnisonar serve: {exc}")
+        return 2
     return 0
 
 

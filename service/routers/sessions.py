@@ -3,6 +3,14 @@
 Filter updates are CPU work: handlers are plain ``def`` (FastAPI's threadpool) or, where the
 raw body must be read first, ``async`` handlers that hand the update to the threadpool
 explicitly. One lock per session serializes its updates; different sessions run in parallel.
+
+Every route needs a key (:mod:`service.auth`); a session answers only the key that created
+it (and admin keys): any other key gets 404, as for an id that does not exist.
+
+Sequence numbers: the first block of a session may carry any ``seq`` in
+``0 .. OMNISONAR_MAX_SEQ_GAP``, each later one ``last + 1 .. last + OMNISONAR_MAX_SEQ_GAP``
+(a gap is lost blocks: the motion step spans it). Anything else is 409 naming the accepted
+range and changes nothing, so no single request can push ``seq`` out of a client's reach.
 """
 
 from __future__ import annotations
@@ -16,12 +24,13 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from numpy.typing import NDArray
-from pydantic import ValidationError
+from pydantic import Field, ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from localization.estimate import PoseEstimate
 from mapping.angles import wrap_angle
 from mapping.signal import SonarConfig
+from service.auth import Caller, Principal
 from service.deps import get_app_settings, get_maps, get_sessions
 from service.errors import ClientError, validation_response
 from service.mapstore import MapStore
@@ -33,11 +42,19 @@ from service.schemas import (
     Estimate,
     Mode,
     Particles,
+    PlainInt,
     Pose2D,
     SessionCreate,
     SessionInfo,
 )
-from service.sessions import BlockInput, FilterSpec, Session, SessionStore
+from service.sessions import (
+    BlockInput,
+    FilterSpec,
+    Session,
+    SessionNotFound,
+    SessionRefused,
+    SessionStore,
+)
 from service.settings import Settings
 
 router = APIRouter(tags=["sessions"])
@@ -45,6 +62,24 @@ router = APIRouter(tags=["sessions"])
 SessionIdPath = Annotated[str, Path(max_length=64, description="session id")]
 Store = Annotated[SessionStore, Depends(get_sessions)]
 _E = {"model": ErrorBody}
+#: Answers of every route on one session: no key (401), not this key's or no such (404), a
+#: session whose map was replaced while the server was down (409).
+_ONE: dict[int | str, dict[str, Any]] = {401: _E, 404: _E, 409: _E}
+AppSettings = Annotated[Settings, Depends(get_app_settings)]
+
+
+def owned(store: SessionStore, session_id: str, who: Principal) -> Session:
+    """The session ``session_id`` if ``who`` may use it; 404 otherwise (ids of other keys'
+    sessions are not disclosed), 409 to its owner for a session refused at restart."""
+    try:
+        s = store.get(session_id)
+    except SessionRefused as exc:
+        if not who.may_use(exc.owner):
+            raise SessionNotFound(session_id) from None
+        raise
+    if not who.may_use(s.owner):
+        raise SessionNotFound(session_id)
+    return s
 
 
 # ---- the one conversion of the core's estimate --------------------------------------------
@@ -74,7 +109,8 @@ def estimate_model(session_id: str, seq: int | None, est: PoseEstimate,
 
 def session_info(store: SessionStore, s: Session) -> SessionInfo:
     return SessionInfo(
-        id=s.id, map_id=s.map_id, filter=s.spec.kind,  # type: ignore[arg-type]
+        id=s.id, map_id=s.map_id, map_sha256=s.spec.map_sha256,
+        filter=s.spec.kind,  # type: ignore[arg-type]
         particles=s.spec.particles, seed=s.spec.seed, beta=s.spec.beta,
         created_at=s.created_at,
         last_active_at=s.last_active_at, expires_in_s=store.expires_in_s(s),
@@ -86,25 +122,33 @@ def session_info(store: SessionStore, s: Session) -> SessionInfo:
 
 # ---- session lifecycle --------------------------------------------------------------------
 @router.post("/sessions", status_code=201, response_model=SessionInfo,
-             responses={422: _E, 429: _E, 503: _E})
+             responses={401: _E, 413: _E, 422: _E, 429: _E, 503: _E})
 def create_session(
-    req: SessionCreate, response: Response, store: Store,
-    maps: Annotated[MapStore, Depends(get_maps)],
-    cfg: Annotated[Settings, Depends(get_app_settings)],
+    req: SessionCreate, response: Response, store: Store, who: Caller,
+    maps: Annotated[MapStore, Depends(get_maps)], cfg: AppSettings,
 ) -> SessionInfo:
-    """Start a filter on a map, from a pose with covariance or globally."""
+    """Start a filter on a map, from a pose with covariance or globally.
+
+    The session is pinned to the map's content (``map_sha256``): overwriting the map later
+    never changes it. An initial pose must lie on the map (422 naming the coordinate). At
+    most ``OMNISONAR_MAX_SESSIONS_PER_KEY`` sessions per key (429 beyond).
+    """
     if req.particles > cfg.max_particles:
         raise ClientError(422, "validation", f"particles {req.particles} over the cap",
                           "particles", f"10 <= particles <= {cfg.max_particles}")
     _require_map(maps, req.map_id)
+    sha = maps.digest(req.map_id)
+    if req.initial_pose is not None:
+        _check_on_map(req.initial_pose, maps.info(req.map_id)["extent_m"])
     seed = req.seed if req.seed is not None else secrets.randbits(63)
     pose = None if req.initial_pose is None else (
         req.initial_pose.x, req.initial_pose.y, float(wrap_angle(req.initial_pose.yaw)))
     cov = req.initial_covariance
     spec = FilterSpec(kind=req.filter, particles=req.particles, seed=seed, initial_pose=pose,
                       initial_covariance=None if cov is None else tuple(tuple(r) for r in cov),
-                      beta=req.beta)
-    s = store.create(req.map_id, spec)  # InvalidSpec (422) names a field the filter refuses
+                      beta=req.beta, map_sha256=sha)
+    # InvalidSpec (422) names a field the filter refuses
+    s = store.create(req.map_id, spec, owner=who.name, max_per_owner=cfg.max_sessions_per_key)
     response.headers["Location"] = f"/sessions/{s.id}"
     return session_info(store, s)
 
@@ -118,41 +162,56 @@ def _require_map(maps: MapStore, map_id: str) -> None:
         raise ClientError(503, "unavailable", "the default map is still being built",
                           "map_id", None, headers={"Retry-After": "30"})
     raise ClientError(422, "validation", f"no map {map_id!r}", "map_id",
-                      f"one of {maps.ids()}")
+                      "the id of a stored map (GET /maps)")
 
 
-@router.get("/sessions/{session_id}", response_model=SessionInfo, responses={404: _E})
-def get_session(session_id: SessionIdPath, store: Store) -> SessionInfo:
+def _check_on_map(pose: Pose2D, extent_m: tuple[float, float, float, float]) -> None:
+    """422 naming ``initial_pose.x`` / ``.y`` when the pose lies outside the map."""
+    xmin, xmax, ymin, ymax = extent_m
+    for name, v, lo, hi in (("x", pose.x, xmin, xmax), ("y", pose.y, ymin, ymax)):
+        if not lo <= v <= hi:
+            raise ClientError(422, "validation", f"initial_pose.{name} {v:g} m is off the map",
+                              f"initial_pose.{name}", f"{lo:.3f} <= {name} <= {hi:.3f} m (the "
+                              "map's extent)")
+
+
+@router.get("/sessions/{session_id}", response_model=SessionInfo, responses=_ONE)
+def get_session(session_id: SessionIdPath, store: Store, who: Caller) -> SessionInfo:
     """The session and its last estimate."""
-    s = store.get(session_id)
+    s = owned(store, session_id, who)
     with s.lock:
         store.touch(s)
         return session_info(store, s)
 
 
-@router.delete("/sessions/{session_id}", status_code=204, responses={404: _E})
-def delete_session(session_id: SessionIdPath, store: Store) -> Response:
-    """End a session and delete its checkpoint."""
+@router.delete("/sessions/{session_id}", status_code=204, responses={401: _E, 404: _E})
+def delete_session(session_id: SessionIdPath, store: Store, who: Caller) -> Response:
+    """End a session and delete its checkpoint (also one refused at restart)."""
+    try:
+        owned(store, session_id, who)
+    except SessionRefused:
+        pass  # its owner may delete it
     store.delete(session_id)
     return Response(status_code=204)
 
 
-@router.post("/sessions/{session_id}/global", response_model=SessionInfo, responses={404: _E})
-def reinit_global(session_id: SessionIdPath, store: Store) -> SessionInfo:
+@router.post("/sessions/{session_id}/global", response_model=SessionInfo, responses=_ONE)
+def reinit_global(session_id: SessionIdPath, store: Store, who: Caller) -> SessionInfo:
     """Re-initialize the filter uniformly over the map (e.g. after a kidnapping)."""
+    owned(store, session_id, who)
     s = store.reinit_global(session_id)
     with s.lock:
         return session_info(store, s)
 
 
 @router.get("/sessions/{session_id}/particles", response_model=Particles,
-            responses={404: _E, 409: _E})
+            responses=_ONE)
 def get_particles(
-    session_id: SessionIdPath, store: Store,
-    max_: Annotated[int, Query(alias="max", ge=1, le=20_000)] = 500,
+    session_id: SessionIdPath, store: Store, who: Caller,
+    max_: Annotated[int, Query(alias="max"), Field(ge=1, le=20_000), PlainInt] = 500,
 ) -> Particles:
     """Up to ``max`` particles (every k-th, in storage order) with their weights."""
-    s = store.get(session_id)
+    s = owned(store, session_id, who)
     with s.lock:
         store.touch(s)
         got = s.tracker.particles()
@@ -194,15 +253,17 @@ _REQUIRED_QUERY = ("seq", "fs_hz", "speed_m_s")
 
 @router.post("/sessions/{session_id}/blocks", response_model=Estimate,
              openapi_extra=_BLOCK_BODY,
-             responses={404: _E, 409: _E, 413: _E, 415: _E, 422: _E})
-async def post_block(session_id: SessionIdPath, request: Request, store: Store,
-                     query: Annotated[BlockQuery, Query()]) -> Estimate:
+             responses={**_ONE, 400: _E, 408: _E, 413: _E, 415: _E, 422: _E})
+async def post_block(session_id: SessionIdPath, request: Request, store: Store, who: Caller,
+                     cfg: AppSettings, query: Annotated[BlockQuery, Query()]) -> Estimate:
     """Feed one block (with its odometry) to the session's filter; returns the estimate.
 
-    A ``seq`` not greater than the last committed one is answered 409 and changes nothing;
-    any other rejected block (wrong length, NaN, fs mismatch) is 422 and changes nothing.
+    ``seq`` must be ``last + 1 .. last + OMNISONAR_MAX_SEQ_GAP`` (the first block:
+    ``0 .. OMNISONAR_MAX_SEQ_GAP``); any other is answered 409 with the accepted range and
+    changes nothing. Any other rejected block (wrong length, NaN, fs mismatch) is 422 and
+    changes nothing.
     """
-    s = store.get(session_id)  # 404 before reading a large body
+    s = owned(store, session_id, who)  # 404 before reading a large body
     body = await request.body()
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     odo: BlockJSON | BlockQuery
@@ -226,6 +287,7 @@ async def post_block(session_id: SessionIdPath, request: Request, store: Store,
         raise ClientError(415, "unsupported_media_type", f"content type {ctype!r}",
                           "content-type", "application/octet-stream or application/json")
     assert odo.seq is not None and odo.fs_hz is not None and odo.speed_m_s is not None
+    check_seq(odo.seq, s.last_seq, cfg.max_seq_gap)
     samples = _decode(raw, odo.encoding, s.tracker.config)
     _check_fs(odo.fs_hz, s.tracker.config)
     block = BlockInput(seq=odo.seq, samples=samples, speed_m_s=odo.speed_m_s,
@@ -236,6 +298,20 @@ async def post_block(session_id: SessionIdPath, request: Request, store: Store,
         raise ClientError(422, "validation", f"block rejected: {exc}", "samples",
                           None) from None
     return estimate_model(session_id, seq_done, est, ms)
+
+
+def check_seq(seq: int, last_seq: int | None, max_gap: int) -> None:
+    """409 unless ``seq`` is in the accepted window after ``last_seq`` (see the module doc).
+
+    Read without the session's lock: a concurrent block can only raise ``last_seq``, and the
+    store refuses ``seq <= last_seq`` under the lock, so the window stays bounded.
+    """
+    lo = 0 if last_seq is None else last_seq + 1
+    hi = max_gap if last_seq is None else last_seq + max_gap
+    if not lo <= seq <= hi:
+        what = "not after the last committed seq" if seq < lo else "too far ahead"
+        raise ClientError(409, "conflict", f"seq {seq} is {what} (last committed: "
+                          f"{last_seq}); expected {lo}", "seq", f"{lo} <= seq <= {hi}")
 
 
 def _b64(text: str) -> bytes:

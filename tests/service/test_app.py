@@ -507,7 +507,9 @@ def test_default_map_built_in_background(settings: Settings,
         assert "paper-b" in info["provenance"]["runs"][0]["path"]
     with TestClient(create_app(cfg)) as c:  # cached: no second build
         assert c.get("/maps").json()["building"] == []
-        assert not c.app.state.jobs._jobs  # type: ignore[attr-defined]
+        jobs = c.app.state.jobs  # type: ignore[attr-defined]
+        assert list(jobs._jobs) == [job_id]  # only the first build's record, kept on disk
+        assert c.get(f"/jobs/{job_id}").json()["status"] == "done"
 
 
 def test_idle_sessions_expire_in_the_background(settings: Settings) -> None:

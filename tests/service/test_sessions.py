@@ -290,3 +290,113 @@ def test_checkpoint_without_fsync_is_the_same_file(tmp_path: Path) -> None:
     write_checkpoint(tmp_path / "b.npz", s, fsync=False)
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+# ---- checkpoint policy (issue 17 item 6) --------------------------------------------------
+def _policy_store(tmp_path: Path, policy: object, now: list[float]) -> SessionStore:
+    from service.sessions import CheckpointPolicy
+
+    assert isinstance(policy, CheckpointPolicy)
+    return SessionStore(tmp_path / "sessions", 4, 1e9, OdometryFactory(),  # type: ignore[arg-type]
+                        clock=lambda: now[0], policy=policy)
+
+
+def _on_disk(tmp_path: Path, sid: str) -> int:
+    meta, _ = read_checkpoint(tmp_path / "sessions" / f"{sid}.npz")
+    return int(meta["n_updates"])
+
+
+def test_policy_every_n_blocks_and_flush(tmp_path: Path) -> None:
+    from service.sessions import CheckpointPolicy
+
+    now = [0.0]
+    store = _policy_store(tmp_path, CheckpointPolicy(every_blocks=3), now)
+    s = store.create("m", SPEC)
+    for k in range(4):
+        store.update(s.id, _block(k))
+        assert _on_disk(tmp_path, s.id) == (3 if k >= 2 else 0)
+    assert s.pending == 1
+    assert store.flush() == 1 and _on_disk(tmp_path, s.id) == 4  # a graceful stop
+    assert store.flush() == 0
+    # a restart (the crash case) resumes from the last checkpoint written
+    again = _policy_store(tmp_path, CheckpointPolicy(every_blocks=3), now)
+    assert again.reload()[0] == [s.id] and again.get(s.id).last_seq == 3
+
+
+def test_policy_every_t_seconds_at_blocks_and_at_the_sweep(tmp_path: Path) -> None:
+    from service.sessions import CheckpointPolicy
+
+    now = [0.0]
+    store = _policy_store(tmp_path, CheckpointPolicy(every_blocks=0, every_s=10.0), now)
+    s = store.create("m", SPEC)
+    for k in range(3):
+        now[0] = 1.0 + k
+        store.update(s.id, _block(k))
+    assert _on_disk(tmp_path, s.id) == 0
+    now[0] = 10.5
+    store.update(s.id, _block(3))  # the checkpoint is 10.5 s old: written with this block
+    assert _on_disk(tmp_path, s.id) == 4
+    store.update(s.id, _block(4))
+    store.expire()  # the periodic sweep: not due yet
+    assert _on_disk(tmp_path, s.id) == 4
+    now[0] = 21.0
+    store.expire()  # due: written without a block
+    assert _on_disk(tmp_path, s.id) == 5 and s.pending == 0
+
+
+def test_policy_flush_never_rewrites_a_deleted_session(tmp_path: Path) -> None:
+    from service.sessions import CheckpointPolicy
+
+    store = _policy_store(tmp_path, CheckpointPolicy(every_blocks=5), [0.0])
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0))
+    store.delete(s.id)
+    assert store.flush() == 0 and not (tmp_path / "sessions" / f"{s.id}.npz").exists()
+
+
+def test_policy_rejects_negative_values() -> None:
+    from service.sessions import CheckpointPolicy
+
+    with pytest.raises(ValueError, match="every_blocks"):
+        CheckpointPolicy(every_blocks=-1)
+    with pytest.raises(ValueError):
+        CheckpointPolicy(every_s=float("nan"))
+    assert CheckpointPolicy().due(1, 0.0)  # the default: after every block
+    assert not CheckpointPolicy(every_blocks=0).due(100, 1e9)  # shutdown-only
+
+
+def test_failed_checkpoint_under_a_policy_restores_the_pending_count(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import service.sessions as sessions_module
+    from service.sessions import CheckpointPolicy
+
+    store = _policy_store(tmp_path, CheckpointPolicy(every_blocks=2), [0.0])
+    s = store.create("m", SPEC)
+    store.update(s.id, _block(0))
+
+    def fail(*_: object, **__: object) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(sessions_module, "write_checkpoint", fail)
+    with pytest.raises(OSError):
+        store.update(s.id, _block(1))  # the checkpoint was due and failed: not committed
+    assert (s.last_seq, s.n_updates, s.pending) == (0, 1, 1)
+
+
+def test_app_checkpoint_policy_from_settings_and_flush_at_shutdown(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    cfg = Settings(maps_dir=tmp_path / "maps", sessions_dir=tmp_path / "sessions",
+                   default_map=False, checkpoint_every_blocks=10, checkpoint_every_s=30.0)
+    app = create_app(cfg, factory=lambda _: OdometryFactory())  # type: ignore[arg-type, return-value]
+    with TestClient(app) as client:
+        store: SessionStore = app.state.sessions
+        assert (store.policy.every_blocks, store.policy.every_s) == (10, 30.0)
+        s = store.create("m", SPEC)
+        store.update(s.id, _block(0))
+        assert _on_disk(tmp_path, s.id) == 0
+        assert client.get("/health").status_code == 200
+    assert _on_disk(tmp_path, s.id) == 1  # the lifespan's end wrote the pending block
