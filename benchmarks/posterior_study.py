@@ -7,12 +7,17 @@ Blocks are simulated with the image-source engine (``mapping.simulate``), heat m
 walls rasterized, 50 mm) so that the study measures the sensor, not the map builder.
 Posteriors are sampled by ``localization.posterior`` (grid modes + one emcee ensemble each).
 
+With ``--model echo`` (the default since issue 14) the likelihood is the echo model on the
+scene's true walls; ``--model correlation`` is issue 8's G model on the rasterized walls.
+
 Writes ``benchmarks/results/posterior_study.json`` and ``posterior_study.png`` (+ a corner
-plot of the symmetric-room case). Runtime: a few minutes on 2 cores.
+plot of the symmetric-room case; ``posterior_study_correlation.*`` for the G model).
+Runtime: a few minutes on 2 cores.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import time
@@ -37,10 +42,11 @@ from mapping.scene import builtin_scene
 from mapping.signal import SonarConfig
 from mapping.simulate import simulate_run
 from mapping.simulate.ism import IsmConfig
-from mapping.wallmap import WallMap
+from mapping.wallmap import WallMap, wallmap_from_walls
 from service.posterior_plot import write_corner_png
 
 OUT = Path(__file__).resolve().parent / "results"
+OUT_NAME = "posterior_study"
 ISM = IsmConfig(max_path_m=12.0)
 SETTINGS = post.PosteriorSettings(n_walkers=16, n_steps=300, max_steps=1500, grid_step_m=0.05,
                                   grid_heading_step_rad=math.radians(10), local_grid_cells=15,
@@ -68,9 +74,18 @@ def rasterize(segments: np.ndarray, resolution_m: float = 0.05, margin_m: float 
                    origin_m=(float(lo[0]), float(lo[1])), resolution_m=resolution_m)
 
 
-def scene_tables(name: str) -> tuple[Any, SensorTables]:
+#: Sensor model of the study: "echo" (the product's default on a map with walls: the scene's
+#: true walls, ``wallmap_from_walls``) or "correlation" (issue 8's G model on the rasterized
+#: walls); ``--model`` picks it, the results carry it.
+MODEL = "echo"
+
+
+def scene_tables(name: str, model: str = MODEL) -> tuple[Any, SensorTables]:
     scene = builtin_scene(name)
     seg = np.array([[w.start, w.end] for w in scene.walls], dtype=float)
+    if model == "echo":
+        return scene, build_tables(wallmap_from_walls(seg.reshape(-1, 4)),
+                                   SensorConfig(model="echo"))
     return scene, build_tables(rasterize(seg), SensorConfig())
 
 
@@ -140,11 +155,22 @@ def pf_calibration(run: Run, tables: SensorTables, res: post.PosteriorResult,
             "kl_posterior_to_pf": cal.kl_posterior_to_cloud}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.posterior_study")
+    ap.add_argument("--model", choices=("echo", "correlation"), default=MODEL,
+                    help="sensor model (default %(default)s); correlation writes "
+                         "posterior_study_correlation.*")
+    model = ap.parse_args(argv).model
+    global OUT_NAME
+    OUT_NAME = "posterior_study" if model == "echo" else "posterior_study_correlation"
     t_start = time.perf_counter()
-    out: dict[str, Any] = {"settings": {"local": SETTINGS.__dict__, "global": GLOBAL.__dict__},
-                           "map": "ideal (rasterized scene walls, 50 mm)", "sensor": "beta*rho"}
-    scene, tables = scene_tables("paper")
+    out: dict[str, Any] = {
+        "settings": {"local": SETTINGS.__dict__, "global": GLOBAL.__dict__}, "model": model,
+        "map": ("ideal (the scene's walls, wallmap_from_walls)" if model == "echo"
+                else "ideal (rasterized scene walls, 50 mm)"),
+        "sensor": "echo model, rho = 1 + ll / 200, beta 200" if model == "echo"
+        else "beta*rho"}
+    scene, tables = scene_tables("paper", model)
     rng = np.random.default_rng(0)
     # 1. width against M: one block at point (a), heading pi/4
     sweep = {}
@@ -178,7 +204,7 @@ def main() -> None:
         if name == "straight":
             asym_run = run
     # 4. asymmetric vs symmetric scene: whole-map prior, three straight blocks
-    sym_scene, sym_tables = scene_tables("l-room")
+    sym_scene, sym_tables = scene_tables("l-room", model)
     sym_run = simulate_run(sym_scene, straight_from((1.35, 0.9), 0.0), SonarConfig(), 3, ISM,
                            rng)
     out["symmetry"] = {}
@@ -192,13 +218,13 @@ def main() -> None:
         out["symmetry"][name] = s
         print(name, s, flush=True)
         if "l-room" in name:
-            write_corner_png(OUT / "posterior_study_corner.png", res, truth,
+            write_corner_png(OUT / f"{OUT_NAME}_corner.png", res, truth,
                              "L-room, 3 straight blocks, whole-map prior")
     out["total_seconds"] = round(time.perf_counter() - t_start, 1)
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "posterior_study.json").write_text(json.dumps(out, indent=1, default=float))
+    (OUT / f"{OUT_NAME}.json").write_text(json.dumps(out, indent=1, default=float))
     plot(out)
-    print(f"wrote {OUT / 'posterior_study.json'} in {out['total_seconds']} s")
+    print(f"wrote {OUT / (OUT_NAME + '.json')} in {out['total_seconds']} s")
 
 
 def plot(out: dict[str, Any]) -> None:
@@ -230,7 +256,7 @@ def plot(out: dict[str, Any]) -> None:
     ax[2].set_ylabel("mode masses (whole-map prior)")
     ax[2].set_title("scene symmetry: modes of 3 straight blocks")
     fig.tight_layout()
-    fig.savefig(OUT / "posterior_study.png", dpi=110)
+    fig.savefig(OUT / f"{OUT_NAME}.png", dpi=110)
     plt.close(fig)
 
 
