@@ -146,13 +146,54 @@ def trace_images(
     shape = (n, m)
     length = np.linalg.norm(img - pos[None], axis=2)
     valid = valid.reshape(shape) & (length > _SOURCE_TOL_M)
+    sound = _sound_order(walls, order).reshape(n, m, max_order)
+    valid &= ~repeated_paths(img, sound, valid)
     return TraceResult(
         valid=valid,
         order=np.where(valid, order.reshape(shape), 0),
-        walls=np.where(valid[..., None], _sound_order(walls, order).reshape(n, m, max_order), -1),
+        walls=np.where(valid[..., None], sound, -1),
         reflection=np.where(valid, rprod.reshape(shape), 0.0),
         path_length_m=length,
     )
+
+
+#: Image points closer than this (metres) are one point when deduplicating paths.
+_SAME_POINT_M = 1e-9
+
+
+def repeated_paths(images_m: FloatArray, walls: IntArray, valid: BoolArray) -> BoolArray:
+    """Valid paths that repeat an earlier image's physical path at the same robot position.
+
+    Two distinct image maps can send the robot to the same point (in the L-room on the line
+    x = 3, ``x - 6 = -x``); the trace depends only on the robot and the image point, so both
+    trace the one physical path (same image point, same walls, same bounce points) and it
+    would be heard twice (issue 15). The first image (lowest index) keeps it.
+
+    Parameters
+    ----------
+    images_m : ndarray, shape (n, m, 2)
+        Image points per image and robot position.
+    walls : ndarray of int, shape (n, m, K)
+        Traced wall sequences (-1 padded).
+    valid : ndarray of bool, shape (n, m)
+
+    Returns
+    -------
+    ndarray of bool, shape (n, m)
+        True where a valid path is a repeat of a lower-index one.
+    """
+    i, j = np.nonzero(valid)
+    out = np.zeros(valid.shape, dtype=bool)
+    if i.size < 2:
+        return out
+    point = np.round(images_m[i, j] / _SAME_POINT_M).astype(np.int64)
+    key = np.column_stack([j, point, walls[i, j]])
+    order = np.lexsort((i,) + tuple(key.T[::-1]))  # by key, then by image index
+    k = key[order]
+    repeat = np.zeros(order.size, dtype=bool)
+    repeat[1:] = np.all(k[1:] == k[:-1], axis=1)
+    out[i[order[repeat]], j[order[repeat]]] = True
+    return out
 
 
 def _sound_order(walls: IntArray, order: IntArray) -> IntArray:

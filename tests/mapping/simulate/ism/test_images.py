@@ -331,3 +331,19 @@ def test_l_room_re_entrant_corner_gives_no_phantom_echo():
         got = _valid_points(L_ROOM, xy, 2)
         for k, walls in got.values():
             assert not (k == 2 and set(walls) == {2, 3}), (xy, walls)
+
+
+@pytest.mark.parametrize(("name", "xy"), [("l-room", (3.0, 0.7)), ("pillar", (0.6, 2.1))])
+def test_coincident_image_maps_trace_one_path(name, xy):
+    # regression (issue 15): two distinct maps sending the robot to the same point (built-in
+    # L-room on x = 3, pillar room on x = 0.6) both traced the one physical path: heard twice
+    from mapping.scene import builtin_scene
+
+    seg = builtin_scene(name).segments()
+    images, tr = _trace(seg, xy, 3)
+    pts = images.positions(np.array([xy], float))[tr.valid[:, 0], 0]
+    assert len(pts) == len(np.unique(np.round(pts, 7), axis=0))
+    # the duplicate was a second map of the same point, not a missing path: off the line the
+    # path count is unchanged
+    _, near = _trace(seg, (xy[0] + 1e-4, xy[1]), 3)
+    assert int(tr.valid.sum()) == int(near.valid.sum())

@@ -39,7 +39,7 @@ ORDER = 3
 POSITION_TOL_M = 2e-6  # float32 images: 1 ulp is 9.5e-7 m between 8 and 16 m
 MIC_OFFSET_M = np.array([1e-3, 0.0])
 CFG = SonarConfig(repetitions=1)
-# generic positions: off the symmetry lines where two image maps coincide (see the xfail)
+# generic positions: off the symmetry lines where two image maps coincide (tested apart)
 POSITIONS = {
     "shoebox": [(1.13, 0.71), (2.9, 2.2), (0.4, 1.7), (3.3, 0.37), (1.9, 1.45)],
     "l-room": [(4.2, 0.6), (1.0, 4.1), (0.7, 0.9), (3.1, 1.3), (1.4, 2.7)],
@@ -145,15 +145,10 @@ def test_rendered_delays_and_waveform_match_the_peers_paths(name: str) -> None:
         assert corr > 1.0 - 1e-6, (xy, corr)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="coincident image maps (issue 15 follow-up): where two distinct maps send the robot "
-    "to the same point (L-room x = 3: x - 6 = -x; pillar x = 0.6: x - 1.2 = -x) both "
-    "candidates trace the one physical path (trace_images checks the image point, not the map) "
-    "and the echo is counted twice",
-)
 @pytest.mark.parametrize(("name", "xy"), [("l-room", (3.0, 0.7)), ("pillar", (0.6, 2.1))])
 def test_coincident_image_maps_give_one_path(name: str, xy: tuple[float, float]) -> None:
+    """Regression (issue 15): where two distinct maps send the robot to the same point (L-room
+    x = 3: x - 6 = -x; pillar x = 0.6: x - 1.2 = -x) the one physical path was counted twice."""
     scene = _scene(name, rigid=True)
     points, _, _ = _our_paths(scene, np.array(xy))
     peer_points, _, _ = _peer_paths(scene, np.array(xy))
