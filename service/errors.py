@@ -237,9 +237,10 @@ def _path_methods(app: Any) -> list[tuple[re.Pattern[str], int, set[str]]]:
 class BodyLimitMiddleware:
     """Answer 413 when a request body exceeds its limit (declared or streamed).
 
-    ``limit_for(scope)`` gives the limit in bytes for a request; a body chunk that takes
-    longer than ``timeout_for(scope)`` seconds to arrive is answered 408 (a slow client must
-    not hold a worker).
+    ``limit_for(scope)`` gives the limit in bytes for a request; a body that is not complete
+    ``timeout_for(scope)`` seconds after the handler first reads it is answered 408 and the
+    connection closed (a slow client must not hold a worker; a deadline for the whole body,
+    not per chunk, so a body trickling in a byte at a time is cut too).
     """
 
     def __init__(self, app: ASGIApp, limit_for: Callable[[Scope], int],
@@ -265,14 +266,19 @@ class BodyLimitMiddleware:
         seen = 0
         started = False
         timeout = None if self.timeout_for is None else self.timeout_for(scope)
+        deadline: float | None = None  # the whole body by then, counted from the first read
         body_done = False
 
         async def limited_receive() -> Message:
-            nonlocal seen, body_done
+            nonlocal seen, body_done, deadline
             if body_done:  # e.g. a streaming response waiting for a disconnect: no timeout
                 return await receive()
+            now = asyncio.get_running_loop().time()
+            if timeout is not None and deadline is None:
+                deadline = now + timeout
             try:
-                msg = await asyncio.wait_for(receive(), timeout)
+                msg = await asyncio.wait_for(receive(),
+                                             None if deadline is None else max(0.0, deadline - now))
             except TimeoutError:
                 raise _SlowBody(timeout or 0.0) from None
             body_done = msg["type"] != "http.request" or not msg.get("more_body", False)

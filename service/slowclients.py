@@ -4,8 +4,9 @@ Uvicorn closes an idle keep-alive connection after ``timeout_keep_alive`` but ha
 on how long a client may take to send a request's *headers*: each byte resets its timer, so
 half-sent requests hold connections for ever. :class:`HeaderDeadlineH11` gives every request
 ``read_timeout_s`` from the moment the connection can carry a new one (opened, or the last
-response sent) until its headers are complete, then closes the connection. The body has the
-same budget per chunk in :class:`service.errors.BodyLimitMiddleware` (408).
+response sent) until its headers are complete, then closes the connection (bytes arriving
+do not extend it). The body has the same budget, for the whole body, in
+:class:`service.errors.BodyLimitMiddleware` (408).
 :func:`uvicorn_options` gathers these with uvicorn's own limits (keep-alive, concurrency,
 header size).
 """
