@@ -5,9 +5,11 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
+from pydantic import SecretStr
 
 from service.app import create_app
 from service.jobs import INTERRUPTED, JobQuota, JobRunner, QueueFull
@@ -80,3 +82,40 @@ def test_http_job_record_survives_restart(tmp_path: Path) -> None:
     with TestClient(create_app(cfg)) as c:
         job = c.get("/jobs/abc123").json()
         assert job["status"] == "failed" and job["message"] == INTERRUPTED
+
+
+def test_http_build_queue_is_bounded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The issue's '51 build requests accepted in a row': over HTTP the queue takes
+    ``max_build_queue`` builds (503 + Retry-After beyond) and ``max_jobs_per_key`` per key
+    (429 + Retry-After); a slot frees when a build ends."""
+    from service import builds
+
+    release = threading.Event()
+    monkeypatch.setattr(builds, "build_to_store", lambda *a, **k: release.wait(30))
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    cfg = Settings(maps_dir=maps, default_map=False, max_build_queue=3, max_jobs_per_key=2,
+                   api_keys=SecretStr("u"), admin_keys=SecretStr("a1,a2"))
+    (cfg.runs_path).mkdir(parents=True)
+    (cfg.runs_path / "r.npz").write_bytes(b"a run (never read: the build is stubbed)")
+    try:
+        with TestClient(create_app(cfg)) as c:
+            def build(key: str, map_id: str) -> Any:
+                return c.post("/maps/build", json={"runs": ["r"], "map_id": map_id},
+                              headers={"Authorization": f"Bearer {key}"})
+
+            assert [build("a1", f"m{i}").status_code for i in range(2)] == [202, 202]
+            over = build("a1", "m2")
+            assert over.status_code == 429 and over.headers["retry-after"], over.text
+            assert build("a2", "m3").status_code == 202
+            full = build("a2", "m4")
+            assert full.status_code == 503 and full.headers["retry-after"], full.text
+            assert full.json()["error"] == "busy"
+            release.set()  # the builds end: the queue takes new ones again
+            deadline, status = time.monotonic() + 10, 0
+            while time.monotonic() < deadline and status != 202:
+                status = build("a2", "m5").status_code
+                time.sleep(0.05)
+            assert status == 202
+    finally:
+        release.set()
