@@ -2,7 +2,9 @@
 
 * Speed: median microseconds per pose of the echo list (numba kernel, batch of poses, after
   warm-up; and one ``echoes`` call including the Python wrapper) for orders 1 and 2 on rooms
-  of 4, 10 and 20 walls; rendering time of one heat map.
+  of 4, 10 and 20 walls; milliseconds per ``echoes_batch`` call on 2000 poses in the shoebox
+  with exact corners (``right_corner_tol_deg`` 0) and with right corners heard at their
+  vertex (3 deg, the localization sensor's setting); rendering time of one heat map.
 * Point-spread: ``render_heatmap`` of one unit echo against ``doppler_heatmap`` of the exact
   synthetic echo (``mapping.synthetic``) at several speeds and wall angles: error at the peak,
   in the PSF window of rows the bank nearly matches (|D| < 20 samples), and anywhere.
@@ -87,6 +89,7 @@ def speed_table() -> list[dict[str, Any]]:
                              single_call_us=float(np.median(single)),
                              mean_echoes=float(out.count.mean())))
     walls = WallSet.from_scene(builtin_scene("shoebox"))
+    rows.extend(corner_speed(walls, rng))
     e = echoes(walls, [1.0, 1.0, 0.3], 0.1, CFG, ForwardParams(max_order=3))
     render_heatmap(e, 0.1, CFG)
     times = []
@@ -95,6 +98,26 @@ def speed_table() -> list[dict[str, Any]]:
         render_heatmap(e, 0.1, CFG)
         times.append((time.perf_counter() - t) * 1e3)
     rows.append(dict(render_ms=float(np.median(times)), render_echoes=e.k))
+    return rows
+
+
+def corner_speed(walls: WallSet, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Milliseconds per ``echoes_batch`` call (2000 poses, order 2, 5 m) with right corners
+    off (0) and heard at their vertex (3 deg)."""
+    ends = walls.segments_m.reshape(-1, 2)
+    lo, hi = ends.min(axis=0), ends.max(axis=0)
+    poses = np.column_stack([rng.uniform(lo + 0.2, hi - 0.2, (2000, 2)),
+                             rng.uniform(-np.pi, np.pi, 2000)])
+    rows = []
+    for tol in (0.0, 3.0):
+        params = ForwardParams(max_order=2, right_corner_tol_deg=tol, max_range_m=5.0)
+        echoes_batch(walls, poses, 0.12, CFG, params)  # warm-up
+        times = []
+        for _ in range(21):
+            t = time.perf_counter()
+            echoes_batch(walls, poses, 0.12, CFG, params)
+            times.append((time.perf_counter() - t) * 1e3)
+        rows.append(dict(corner_tol_deg=tol, poses=2000, batch_ms=float(np.median(times))))
     return rows
 
 

@@ -455,12 +455,12 @@ def tracking_trial(tables: SensorTables, feed: Feed, n: int, images: Images) -> 
     }, tr
 
 
-def _any_mode_within(means: FloatArray, truth: FloatArray) -> bool:
-    """Whether one of the reported modes lies within 10 cm / 10 deg of the truth."""
+def _any_mode_within(means: FloatArray, truth: FloatArray, tol_m: float = TOL_M) -> bool:
+    """Whether one of the reported modes lies within ``tol_m`` / 10 deg of the truth."""
     if means.shape[0] == 0:
         return False
     pos, head = errors(means, np.broadcast_to(truth, means.shape))
-    return bool(np.any((pos <= TOL_M) & (head <= TOL_RAD)))
+    return bool(np.any((pos <= tol_m) & (head <= TOL_RAD)))
 
 
 def global_trial(tables: SensorTables, feed: Feed, n: int, seed: int, images: Images
@@ -526,10 +526,22 @@ def kidnap_trial(tables: SensorTables, lr: LocRun, target: tuple[LocRun, int, fl
     rec = int(within[0]) + 1 if within.size else None
     post = tr.status[KIDNAP_AFTER:]
     doubt = next((k + 1 for k, s in enumerate(post) if s != "converged"), None)
+    # in a (locally) symmetric room the robot cannot tell where it was carried among poses
+    # that hear alike: back at a symmetric image counts modulo symmetry, and the truth among
+    # the reported modes says the filter holds it
+    rec_sym = next((k + 1 for k in range(len(after)) if after[k] <= KIDNAP_TOL_M
+                    or images.near_image(tr.poses[KIDNAP_AFTER + k], feed.truth[KIDNAP_AFTER + k],
+                                         float(feed.true_speed[KIDNAP_AFTER + k]),
+                                         KIDNAP_TOL_M, TOL_RAD)), None)
+    rec_modes = next((k + 1 for k in range(len(after)) if after[k] <= KIDNAP_TOL_M
+                      or _any_mode_within(tr.modes[KIDNAP_AFTER + k],
+                                          feed.truth[KIDNAP_AFTER + k], KIDNAP_TOL_M)), None)
     return {
         "target": o.name, "target_block": j, "jump_m": dist, "seed": seed,
         "tracked_before": bool(pos[KIDNAP_AFTER - 1] <= TOL_M),
         "blocks_to_recover": rec, "window": len(after),
+        "blocks_to_recover_mod_sym": rec_sym,
+        "blocks_to_truth_among_modes": rec_modes,
         "stayed_after_recovery": bool(rec is not None and np.all(after[rec - 1:] <= KIDNAP_TOL_M)),
         "blocks_until_not_converged": doubt,
         "status_after": status_counts(post),
@@ -690,6 +702,10 @@ def summarize_variant(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
         if gl else math.nan,
         "kidnap_trials": len(kd),
         "kidnap_recovered": len(rec),
+        "kidnap_recovered_mod_sym": sum(k.get("blocks_to_recover_mod_sym") is not None
+                                        for k in kd),
+        "kidnap_truth_among_modes": sum(k.get("blocks_to_truth_among_modes") is not None
+                                        for k in kd),
         "kidnap_blocks_to_recover_mean": float(np.mean(rec)) if rec else math.nan,
         "confidently_wrong": sum_cw([e["confidently_wrong"] for e in ok]),
         "update_ms_median_of_runs": float(np.median(ms)) if ms else math.nan,
@@ -704,12 +720,15 @@ def run_line(name: str, variant: str, e: dict[str, Any]) -> str:
     gl = e["global"]
     kd = e["kidnap"]
     rec = [k["blocks_to_recover"] for k in kd]
+    rec_sym = ["-" if k.get("blocks_to_recover_mod_sym") is None
+               else k["blocks_to_recover_mod_sym"] for k in kd]
     return (f"{name:<22} {variant:<11} rmse {100 * t['position_rmse_m']:6.1f} cm "
             f"{t['heading_rmse_deg']:5.1f} deg nees {t['nees_mean']:8.1f} "
             f"modes {100 * t['share_truth_among_modes']:3.0f}% "
             f"glob {sum(g['success'] for g in gl)}/{len(gl)} "
             f"sym {sum(g['success_mod_sym'] for g in gl)}/{len(gl)} "
             f"kid {['-' if r is None else r for r in rec]} "
+            f"sym {rec_sym} "
             f"cw {cw['wrong']}/{cw['blocks']} (sym {cw['wrong_mod_sym']}) "
             f"{e['timing'].get('ms_median', math.nan):6.1f} ms")
 
@@ -811,7 +830,9 @@ def print_summary(summary: dict[str, Any], search_summary: dict[str, Any]) -> No
               f"(mod sym {sv['tracking_lost_runs_mod_sym']}, truth among modes "
               f"{100 * sv['tracking_share_truth_among_modes']:.0f}%); "
               f"global {sv['global_success']:.2f} (mod sym {sv['global_success_mod_sym']:.2f});"
-              f" kidnap {sv['kidnap_recovered']}/{sv['kidnap_trials']}; confidently wrong "
+              f" kidnap {sv['kidnap_recovered']}/{sv['kidnap_trials']} (mod sym "
+              f"{sv.get('kidnap_recovered_mod_sym', 0)}, truth among modes "
+              f"{sv.get('kidnap_truth_among_modes', 0)}); confidently wrong "
               f"{cw['wrong']}/{cw['blocks']} (mod sym {cw['wrong_mod_sym']}); "
               f"{sv['update_ms_median_of_runs']:.1f} ms/update")
     for name, sv in search_summary.items():

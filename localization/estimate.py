@@ -34,6 +34,10 @@ class ClusterConfig:
         bin belong to no mode (so a thin bridge of particles does not join two modes).
     max_modes : int
         Modes reported.
+    refine_levels, split_share : int, float
+        A mode wider than the convergence limits is clustered again on a grid twice as
+        fine (up to ``refine_levels`` times) and split when two parts each hold
+        ``split_share`` of its weight (:func:`find_modes`).
     converged_weight, converged_std_m, converged_std_rad : float
         ``converged`` when the best mode holds at least this weight and its position and
         heading standard deviations are below these.
@@ -44,6 +48,8 @@ class ClusterConfig:
     min_bin_weight: float = 1e-3
     rel_bin_weight: float = 0.02
     max_modes: int = 5
+    refine_levels: int = 1
+    split_share: float = 0.1
     converged_weight: float = 0.9
     converged_std_m: float = 0.15
     converged_std_rad: float = math.radians(15.0)
@@ -143,26 +149,65 @@ def nees(estimate: FloatArray, cov: FloatArray, truth: FloatArray) -> float:
 
 
 def find_modes(poses: FloatArray, weights: FloatArray, config: ClusterConfig) -> list[Mode]:
-    """Cluster a weighted pose set into modes, heaviest first (see the module docstring)."""
+    """Cluster a weighted pose set into modes, heaviest first (see the module docstring).
+
+    A component that is not compact (position or heading spread above the convergence
+    limits) is clustered again on a grid twice as fine, up to ``config.refine_levels``
+    times, and replaced by its parts when at least two of them each hold
+    ``config.split_share`` of its weight: two modes a few decimetres and a few tens of
+    degrees apart (a symmetric room's twins near its centre, a mirror pose next to the
+    truth) touch on the coarse grid, and their average is a pose neither of them is.
+    """
     w = weights / weights.sum()
-    lo = poses[:, :2].min(axis=0)
-    ij = np.floor((poses[:, :2] - lo) / config.cell_m).astype(np.int64)
-    hb = np.floor((wrap_angle(poses[:, 2]) + np.pi) / (2 * np.pi) * config.heading_bins)
-    hb = np.clip(hb.astype(np.int64), 0, config.heading_bins - 1)
-    shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1, config.heading_bins)
-    flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], hb), shape)
-    bin_w = np.bincount(flat, weights=w, minlength=int(np.prod(shape))).reshape(shape)
-    level = max(config.min_bin_weight, config.rel_bin_weight * float(bin_w.max()))
-    labels, n = ndimage.label(bin_w >= level, structure=np.ones((3, 3, 3)))
-    labels = _merge_wrap(labels, n)
-    particle_label = labels.ravel()[flat]
     modes = []
-    for lab in np.unique(particle_label[particle_label > 0]):
-        sel = particle_label == lab
+    for sel in _split(poses, w, np.arange(poses.shape[0]), config.cell_m,
+                      config.heading_bins, config, config.refine_levels):
         mean, cov = weighted_mean_cov(poses[sel], w[sel])
         modes.append(Mode(weight=float(w[sel].sum()), mean=mean, cov=cov))
     modes.sort(key=lambda m: -m.weight)
     return modes[: config.max_modes]
+
+
+def _split(poses: FloatArray, w: FloatArray, idx: NDArray[np.int64], cell_m: float,
+           heading_bins: int, config: ClusterConfig, levels: int) -> list[NDArray[np.int64]]:
+    """Components (particle indices) of ``idx`` on a grid of ``cell_m`` x ``heading_bins``,
+    each refined (:func:`find_modes`) while ``levels`` remain."""
+    parts = _components(poses[idx], w[idx], cell_m, heading_bins, config)
+    out: list[NDArray[np.int64]] = []
+    for part in parts:
+        sel = idx[part]
+        if levels > 0 and sel.size > 1:
+            _, cov = weighted_mean_cov(poses[sel], w[sel])
+            wide = (math.sqrt(max(cov[0, 0] + cov[1, 1], 0.0)) > config.converged_std_m
+                    or math.sqrt(max(cov[2, 2], 0.0)) > config.converged_std_rad)
+            if wide:
+                sub = _split(poses, w, sel, 0.5 * cell_m, 2 * heading_bins, config,
+                             levels - 1)
+                total = float(w[sel].sum())
+                big = sum(float(w[s].sum()) >= config.split_share * total for s in sub)
+                if big >= 2:
+                    out.extend(sub)
+                    continue
+        out.append(sel)
+    return out
+
+
+def _components(poses: FloatArray, w: FloatArray, cell_m: float, heading_bins: int,
+                config: ClusterConfig) -> list[NDArray[np.int64]]:
+    """Connected components of the bins holding non-negligible weight (indices into poses)."""
+    lo = poses[:, :2].min(axis=0)
+    ij = np.floor((poses[:, :2] - lo) / cell_m).astype(np.int64)
+    hb = np.floor((wrap_angle(poses[:, 2]) + np.pi) / (2 * np.pi) * heading_bins)
+    hb = np.clip(hb.astype(np.int64), 0, heading_bins - 1)
+    shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1, heading_bins)
+    flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], hb), shape)
+    bin_w = np.bincount(flat, weights=w, minlength=int(np.prod(shape))).reshape(shape)
+    level = max(config.min_bin_weight * float(w.sum()), config.rel_bin_weight * float(bin_w.max()))
+    labels, n = ndimage.label(bin_w >= level, structure=np.ones((3, 3, 3)))
+    labels = _merge_wrap(labels, n)
+    particle_label = labels.ravel()[flat]
+    return [np.flatnonzero(particle_label == lab)
+            for lab in np.unique(particle_label[particle_label > 0])]
 
 
 def _merge_wrap(labels: NDArray[np.int32], n: int) -> NDArray[np.int64]:

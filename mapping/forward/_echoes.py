@@ -3,7 +3,8 @@
 :class:`WallSet` holds the walls the model knows, :class:`ForwardParams` the limits;
 :func:`echoes` gives the :class:`Echoes` of one pose, :func:`echoes_batch` the
 :class:`EchoBatch` of many (numba, parallel over poses). The path enumeration and tracing
-are the kernel ``_kernels._batch_echoes``; this module validates and converts.
+are the kernel ``_kernels._batch_echoes`` (right corners heard at their vertex included);
+this module validates and converts.
 """
 
 from __future__ import annotations
@@ -15,8 +16,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mapping.forward._corners import regularize_corners, right_corners
-from mapping.forward._kernels import _batch_echoes, _Limits, _Out, _single_echoes, _Walls
+from mapping.forward._corners import _corner_arrays, right_corners
+from mapping.forward._kernels import (
+    _batch_echoes,
+    _Corners,
+    _Limits,
+    _Out,
+    _single_echoes,
+    _Walls,
+)
 from mapping.signal import SonarConfig, checked_speed_m_s
 
 FloatArray = NDArray[np.float64]
@@ -263,16 +271,38 @@ def _empty_out(n: int, cap: int, max_order: int) -> _Out:
     )
 
 
-def _run(walls: WallSet, poses: FloatArray, lim: _Limits, single: bool) -> _Out:
+#: No right corners: the kernel's exact image paths only.
+_NO_CORNERS = _Corners(np.zeros((0, 2), dtype=np.int64), np.zeros((0, 2)), np.zeros((0, 2)),
+                       np.zeros((0, 2)), np.zeros((0, 0), dtype=np.bool_))
+
+
+def _kernel_corners(walls: WallSet, lim: _Limits, params: ForwardParams) -> _Corners:
+    """The right corners heard at their vertex (none when ``right_corner_tol_deg`` is 0)."""
+    if params.right_corner_tol_deg <= 0 or walls.n < 2 or lim.max_order < 2:
+        return _NO_CORNERS
+    corners = right_corners(walls.segments_m, params.right_corner_tol_deg,
+                            params.corner_join_m)
+    if not corners:
+        return _NO_CORNERS
+    pairs, vertex, ea, eb = _corner_arrays(walls.segments_m, corners)
+    skip = np.zeros((walls.n, walls.n), dtype=np.bool_)
+    skip[pairs[:, 0], pairs[:, 1]] = True
+    skip[pairs[:, 1], pairs[:, 0]] = True
+    return _Corners(pairs, vertex, ea, eb, skip)
+
+
+def _run(walls: WallSet, poses: FloatArray, lim: _Limits, params: ForwardParams,
+         single: bool) -> _Out:
     n = poses.shape[0]
     cap = _capacity(walls.n, lim.max_order)
+    corners = _kernel_corners(walls, lim, params)
     while True:
         out = _empty_out(n, cap, lim.max_order)
         if walls.n and n:
             if single:
-                _single_echoes(_kernel_walls(walls), lim, poses[0], out)
+                _single_echoes(_kernel_walls(walls), lim, corners, poses[0], out)
             else:
-                _batch_echoes(_kernel_walls(walls), lim, poses, out)
+                _batch_echoes(_kernel_walls(walls), lim, corners, poses, out)
         most = int(out.n_found.max()) if n else 0
         if most <= cap:
             return out
@@ -334,9 +364,7 @@ def echoes(
     p = np.asarray(pose, dtype=np.float64)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise ValueError(f"pose must be 3 finite numbers (x, y, heading), got {pose!r}")
-    out = _corners_regularized(_run(walls, p[None].copy(), lim, single=True), walls, p[None],
-                               lim, params)
-    batch = _to_batch(out, params.spreading)
+    batch = _to_batch(_run(walls, p[None].copy(), lim, params, single=True), params.spreading)
     return batch.echoes_of(0)
 
 
@@ -364,27 +392,8 @@ def echoes_batch(
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise ValueError(f"poses must be finite with shape (n, 3), got shape {p.shape}")
-    out = _run(walls, np.ascontiguousarray(p), lim, single=False)
-    return _to_batch(_corners_regularized(out, walls, p, lim, params), params.spreading)
-
-
-def _corners_regularized(out: _Out, walls: WallSet, poses: FloatArray, lim: _Limits,
-                         params: ForwardParams) -> _Out:
-    """``out`` with right corners heard at their vertex (``params.right_corner_tol_deg``)."""
-    if params.right_corner_tol_deg <= 0 or walls.n < 2 or lim.max_order < 2:
-        return out
-    corners = right_corners(walls.segments_m, params.right_corner_tol_deg,
-                            params.corner_join_m)
-    if not corners:
-        return out
-    fields = {"count": out.n_found, "path_m": out.path_m, "cos_doppler": out.cos_doppler,
-              "amplitude": out.amplitude, "order": out.order, "walls": out.walls,
-              "points": out.points, "bearing": out.bearing}
-    f = regularize_corners(fields, walls.segments_m, np.asarray(walls.strength, float), poses,
-                           corners, lim.speed_m_s, lim.sound_speed_m_s, lim.spreading_power,
-                           lim.max_path_m, lim.min_amplitude)
-    return _Out(f["count"], f["path_m"], f["cos_doppler"], f["amplitude"], f["order"],
-                f["walls"], f["points"], f["bearing"])
+    out = _run(walls, np.ascontiguousarray(p), lim, params, single=False)
+    return _to_batch(out, params.spreading)
 
 
 def _to_batch(out: _Out, spreading: str) -> EchoBatch:

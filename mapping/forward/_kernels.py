@@ -2,10 +2,12 @@
 
 ``_batch_echoes`` enumerates, for every pose, the specular image-source paths of a set of wall
 segments up to an order and writes each valid one (range, Doppler cosine, amplitude, walls,
-specular points, arrival bearing) into padded output arrays; ``_render_rows`` spreads a list
-of echoes over the heat-map grid with the drift-averaged point-spread function. Inputs come
-as small namedtuples (:class:`_Walls`, :class:`_Limits`, :class:`_Out`, :class:`_Psf`). The
-plain numpy twins live with the tests (``tests/mapping/forward/naive.py``).
+specular points, arrival bearing) into padded output arrays, hearing the right corners of
+:class:`_Corners` once at their vertex instead of by their exact order-2 paths;
+``_render_rows`` spreads a list of echoes over the heat-map grid with the drift-averaged
+point-spread function. Inputs come as small namedtuples (:class:`_Walls`, :class:`_Limits`,
+:class:`_Corners`, :class:`_Out`, :class:`_Psf`). The plain numpy twins live with the tests
+(``tests/mapping/forward/naive.py``).
 """
 
 from __future__ import annotations
@@ -45,6 +47,21 @@ class _Limits(NamedTuple):
     sound_speed_m_s: float
     spreading_power: float
     speed_m_s: float
+
+
+class _Corners(NamedTuple):
+    """Right corners (m of them, m may be 0) heard at their vertex (``_corners``).
+
+    ``pairs[c] = (i, j)`` (i < j) are the two walls, ``vertex[c]`` their shared end, ``ea``,
+    ``eb`` the wedge edges (vertex -> far end of wall i, j); ``skip[i, j]`` (W, W; (0, 0)
+    when m = 0) marks the order-2 wall sequences the vertex echo replaces, both ways.
+    """
+
+    pairs: np.ndarray  # (m, 2) int64
+    vertex: np.ndarray  # (m, 2)
+    ea: np.ndarray  # (m, 2)
+    eb: np.ndarray  # (m, 2)
+    skip: np.ndarray  # (W, W) bool
 
 
 class _Out(NamedTuple):
@@ -104,8 +121,10 @@ def _ray_from(walls: _Walls, w: int, cx: float, cy: float, side: int) -> tuple[f
 
 
 @numba.njit(**NUMBA_FLAGS)
-def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int, w2: int) -> bool:
-    """Whether any wall other than w1, w2 crosses the open leg a -> b."""
+def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int, w2: int,
+             u_tol: float) -> bool:
+    """Whether any wall other than w1, w2 crosses the open leg a -> b (within ``u_tol`` of
+    its ends)."""
     rx, ry = bx - ax, by - ay
     for w in range(walls.p0.shape[0]):
         if w == w1 or w == w2:
@@ -117,7 +136,7 @@ def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int,
         qx, qy = walls.p0[w, 0] - ax, walls.p0[w, 1] - ay
         s = _cross(qx, qy, dx, dy) / den
         u = _cross(qx, qy, rx, ry) / den
-        if S_TOL < s < 1.0 - S_TOL and -U_TOL <= u <= 1.0 + U_TOL:
+        if S_TOL < s < 1.0 - S_TOL and -u_tol <= u <= 1.0 + u_tol:
             return True
     return False
 
@@ -161,16 +180,18 @@ def _trace(walls: _Walls, seq: np.ndarray, k: int, img: np.ndarray, sx: float, s
             prev_zero = True
             continue
         prev_zero = False
-        if _blocked(walls, ax, ay, bx, by, w1, w2):
+        if _blocked(walls, ax, ay, bx, by, w1, w2, U_TOL):
             return False
     return True
 
 
 @numba.njit(**NUMBA_FLAGS)
-def _pose_echoes(walls: _Walls, lim: _Limits, pose: np.ndarray, out: _Out, i: int,
-                 keys: np.ndarray) -> None:
-    """All valid paths of one pose into row ``i`` of ``out`` (sorted by length)."""
+def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarray, out: _Out,
+                 i: int, keys: np.ndarray) -> None:
+    """All valid paths of one pose into row ``i`` of ``out`` (sorted by length): the exact
+    ones, less the order-2 paths of each right corner, then the corners' vertex echoes."""
     n_walls = walls.p0.shape[0]
+    has_corners = corners.pairs.shape[0] > 0
     kmax = lim.max_order
     cap = out.path_m.shape[1]
     sx, sy, heading = pose[0], pose[1], pose[2]
@@ -200,6 +221,8 @@ def _pose_echoes(walls: _Walls, lim: _Limits, pose: np.ndarray, out: _Out, i: in
             nxt[depth] = w + 1
             if depth > 0 and w == seq[depth - 1]:
                 continue
+            if has_corners and order == 2 and depth == 1 and corners.skip[seq[0], w]:
+                continue  # a right corner: heard at its vertex below
             seq[depth] = w
             _compose(walls, w, mA, mb, depth)
             ix = mA[depth + 1, 0, 0] * sx + mA[depth + 1, 0, 1] * sy + mb[depth + 1, 0]
@@ -255,8 +278,63 @@ def _pose_echoes(walls: _Walls, lim: _Limits, pose: np.ndarray, out: _Out, i: in
                     out.points[i, count, m, 1] = pts[m, 1] if m < order else np.nan
                 out.bearing[i, count] = math.atan2(pts[order - 1, 1] - sy, pts[order - 1, 0] - sx)
             count += 1
+    for m in range(corners.pairs.shape[0]):
+        if _vertex_echo(walls, lim, corners, m, sx, sy, tx, ty, vx, vy, out, i, count):
+            count += 1
     out.n_found[i] = count
     _sort_row(out, i, min(count, cap))
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _vertex_echo(walls: _Walls, lim: _Limits, corners: _Corners, m: int, sx: float, sy: float,
+                 tx: float, ty: float, vx: float, vy: float, out: _Out, i: int,
+                 slot: int) -> bool:
+    """The retro-reflection of right corner m heard from S, written to ``out[i, slot]`` when
+    there is room: True when heard (S strictly inside the corner's convex wedge, the line of
+    sight to the vertex clear, within the path and amplitude limits).
+
+    The image of S in both walls is its point reflection through the vertex C, so the round
+    trip is retarded as the exact paths are: ``L = |D + a L|`` with ``D = 2 (S - C)`` and
+    ``a = -v / c`` (the map's A = -I); amplitude ``s_i s_j / L**p``; Doppler cosine of the
+    direction to C (departure = arrival); both bounce points at C.
+    """
+    cx, cy = corners.vertex[m, 0], corners.vertex[m, 1]
+    ex, ey = corners.ea[m, 0], corners.ea[m, 1]
+    fx, fy = corners.eb[m, 0], corners.eb[m, 1]
+    k = _cross(ex, ey, fx, fy)
+    if abs(k) < 1e-9:
+        return False
+    qx, qy = sx - cx, sy - cy
+    if not (_cross(ex, ey, qx, qy) * k > 0.0 and _cross(qx, qy, fx, fy) * k > 0.0):
+        return False
+    wi, wj = corners.pairs[m, 0], corners.pairs[m, 1]
+    if _blocked(walls, sx, sy, cx, cy, wi, wj, 0.0):
+        return False
+    dist = math.hypot(qx, qy)
+    if dist <= 1e-6:
+        return False
+    c = lim.sound_speed_m_s
+    ax, ay = -vx / c, -vy / c
+    da = 2.0 * (qx * ax + qy * ay)
+    aa = ax * ax + ay * ay
+    length0 = 2.0 * dist
+    length = (da + math.sqrt(da * da + (1.0 - aa) * length0 * length0)) / (1.0 - aa)
+    if length > lim.max_path_m:
+        return False
+    amp = walls.strength[wi] * walls.strength[wj] / length**lim.spreading_power
+    if abs(amp) < lim.min_amplitude:
+        return False
+    if slot < out.path_m.shape[1]:
+        out.path_m[i, slot] = length
+        out.cos_doppler[i, slot] = -(qx * tx + qy * ty) / dist
+        out.amplitude[i, slot] = amp
+        out.order[i, slot] = 2
+        for r in range(out.walls.shape[2]):
+            out.walls[i, slot, r] = wi if r == 0 else (wj if r == 1 else -1)
+            out.points[i, slot, r, 0] = cx if r < 2 else np.nan
+            out.points[i, slot, r, 1] = cy if r < 2 else np.nan
+        out.bearing[i, slot] = math.atan2(-qy, -qx)
+    return True
 
 
 @numba.njit(**NUMBA_FLAGS)
@@ -305,19 +383,21 @@ def _swap(out: _Out, i: int, a: int, b: int) -> None:
 
 
 @numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
-def _batch_echoes(walls: _Walls, lim: _Limits, poses: np.ndarray, out: _Out) -> None:
+def _batch_echoes(walls: _Walls, lim: _Limits, corners: _Corners, poses: np.ndarray,
+                  out: _Out) -> None:
     """Echoes of every pose (parallel over poses); see :func:`_pose_echoes`."""
     cap = out.path_m.shape[1]
     for i in numba.prange(poses.shape[0]):
         keys = np.empty((cap, 6))
-        _pose_echoes(walls, lim, poses[i], out, i, keys)
+        _pose_echoes(walls, lim, corners, poses[i], out, i, keys)
 
 
 @numba.njit(**NUMBA_FLAGS)
-def _single_echoes(walls: _Walls, lim: _Limits, pose: np.ndarray, out: _Out) -> None:
+def _single_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarray,
+                   out: _Out) -> None:
     """Echoes of a single pose into row 0 of ``out`` (serial: no thread start-up)."""
     keys = np.empty((out.path_m.shape[1], 6))
-    _pose_echoes(walls, lim, pose, out, 0, keys)
+    _pose_echoes(walls, lim, corners, pose, out, 0, keys)
 
 
 # ---- rendering ------------------------------------------------------------------------------

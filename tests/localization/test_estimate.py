@@ -59,6 +59,39 @@ def test_mode_across_heading_wrap_is_one_mode() -> None:
     assert abs(wrap_angle(modes[0].mean[2] - math.pi)) < 0.02
 
 
+def _blob(rng: np.random.Generator, x: float, y: float, h: float, n: int, sd_m: float,
+          sd_rad: float) -> np.ndarray:
+    return np.column_stack([rng.normal(x, sd_m, n), rng.normal(y, sd_m, n),
+                            wrap_angle(rng.normal(h, sd_rad, n))])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_near_twins_are_two_modes_not_their_average(seed: int) -> None:
+    # a shoebox's mirror twins near its centre line: 0.4 m and 50 deg apart, touching on
+    # the coarse grid; their average (heading 0, on the centre line) is neither of them
+    rng = np.random.default_rng(seed)
+    poses = np.vstack([_blob(rng, 1.57, 1.30, 0.44, 600, 0.02, 0.03),
+                       _blob(rng, 1.57, 1.70, -0.44, 400, 0.02, 0.03)])
+    modes = find_modes(poses, np.ones(1000), ClusterConfig())
+    assert len(modes) == 2
+    np.testing.assert_allclose(modes[0].mean, [1.57, 1.30, 0.44], atol=0.02)
+    np.testing.assert_allclose(modes[1].mean, [1.57, 1.70, -0.44], atol=0.02)
+    assert modes[0].weight == pytest.approx(0.6, abs=0.02)
+    # without refinement the coarse grid joins them, as before
+    coarse = find_modes(poses, np.ones(1000), ClusterConfig(refine_levels=0))
+    assert len(coarse) == 1 and abs(coarse[0].mean[2]) < 0.1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_one_wide_blob_stays_one_mode(seed: int) -> None:
+    # a single broad mode (early global start) is not shattered by the refinement
+    rng = np.random.default_rng(seed)
+    poses = _blob(rng, 2.0, 1.0, 1.0, 2000, 0.25, 0.3)
+    modes = find_modes(poses, np.ones(2000), ClusterConfig())
+    assert modes[0].weight > 0.8
+    np.testing.assert_allclose(modes[0].mean[:2], [2.0, 1.0], atol=0.05)
+
+
 def test_summarize_converged_flag() -> None:
     poses, w = _two_clusters(0.02)
     est = summarize(poses, np.log(w), ClusterConfig(), ess=10.0, direction_observable=True,

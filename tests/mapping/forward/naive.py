@@ -2,8 +2,10 @@
 
 ``echoes_numpy`` enumerates every wall sequence with ``itertools.product``, builds the image
 by explicit mirror matrices and traces it leg by leg; ``render_numpy`` evaluates the
-drift-averaged correlation by numerical integration of the PSF table. Slow and written for
-reading; ``test_forward.py`` compares them with the kernels on random scenes.
+drift-averaged correlation by numerical integration of the PSF table; ``regularize_corners``
+post-processes exact echo lists as the kernel hears right corners (drop each corner's
+order-2 paths, add its vertex echo, re-sort). Slow and written for reading;
+``test_forward.py`` and ``test_corners.py`` compare them with the kernels on random scenes.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+
+from mapping.forward import vertex_paths
 
 FloatArray = NDArray[np.float64]
 
@@ -88,7 +92,7 @@ def _valid(seg: FloatArray, seq: tuple[int, ...], images: list[FloatArray],
 
 def echoes_numpy(
     seg: FloatArray, strength: FloatArray, pose: FloatArray, speed: float, c: float,
-    max_order: int, max_path: float, power: float,
+    max_order: int, max_path: float, power: float, min_amplitude: float = 0.0,
 ) -> list[dict[str, object]]:
     """Twin of ``_kernels._pose_echoes``: a list of echo dicts sorted by path length."""
     s = np.asarray(pose[:2], dtype=np.float64)
@@ -123,16 +127,123 @@ def echoes_numpy(
             a = A @ vel / c
             da, aa = float(d @ a), float(a @ a)
             length = (da + math.sqrt(da * da + (1 - aa) * length0**2)) / (1 - aa)
-            if length > max_path:
+            amplitude = float(np.prod(strength[list(seq)])) / length**power
+            if length > max_path or abs(amplitude) < min_amplitude:
                 continue
             keys.append(key)
             found.append(dict(
                 path_m=length, cos_doppler=0.5 * (float(u @ (A @ travel)) - float(u @ travel)),
-                amplitude=float(np.prod(strength[list(seq)])) / length**power, order=order,
+                amplitude=amplitude, order=order,
                 walls=list(seq), points=np.array(pts),
                 bearing=math.atan2(pts[-1][1] - s[1], pts[-1][0] - s[0]),
             ))
     return sorted(found, key=lambda e: float(e["path_m"]))  # type: ignore[arg-type]
+
+
+def regularize_corners(fields: dict[str, np.ndarray], segments_m: FloatArray,
+                       strength: FloatArray, poses: FloatArray,
+                       corners: list[tuple[int, int, FloatArray]], speed_m_s: float,
+                       sound_speed_m_s: float, spreading_power: float, max_path_m: float,
+                       min_amplitude: float) -> dict[str, np.ndarray]:
+    """Twin of the corner part of ``_kernels._pose_echoes``: padded echo arrays
+    (``count``, ``path_m`` (round trip), ``cos_doppler``, ``amplitude``, ``order``,
+    ``walls`` (n, k, K), ``points`` (n, k, K, 2), ``bearing``) of the exact paths, with
+    every order-2 path of each corner's wall pair replaced by its vertex echo.
+
+    The vertex echo: round trip ``L`` retarded as the exact paths are (the sonar's image is
+    its point reflection through the vertex, so ``L = |D - v L / c|`` with ``D = 2 (S -
+    C)``), amplitude ``s_i s_j / L**p``, Doppler cosine of the direction to the vertex,
+    bounce points both at the vertex. Rows stay sorted by path length; padding as before
+    (NaN, order 0, walls -1).
+    """
+    count = fields["count"]
+    n, k = fields["path_m"].shape
+    kk = fields["walls"].shape[2]
+    valid = np.arange(k)[None, :] < count[:, None]
+    if kk >= 2 and corners:
+        w = fields["walls"]
+        for i, j, _ in corners:
+            pair = ((fields["order"] == 2)
+                    & (((w[:, :, 0] == i) & (w[:, :, 1] == j))
+                       | ((w[:, :, 0] == j) & (w[:, :, 1] == i))))
+            valid &= ~pair
+    m = len(corners)
+    if m == 0 or kk < 2:
+        return _compact(fields, valid)
+    p = np.asarray(poses, dtype=np.float64)
+    dist, heard = vertex_paths(segments_m, p, corners)
+    heading = p[:, 2]
+    sign = -1.0 if speed_m_s < 0 else 1.0
+    t = sign * np.stack([np.cos(heading), np.sin(heading)], axis=1)       # travel
+    vel = speed_m_s * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    c = sound_speed_m_s
+    names = ("path_m", "cos_doppler", "amplitude", "order", "walls", "points", "bearing")
+    new: dict[str, list[np.ndarray]] = {key: [] for key in names}
+    ok = heard.copy()
+    for col, (i, j, vertex) in enumerate(corners):
+        q = vertex[None, :] - p[:, :2]                         # sonar -> vertex
+        d = np.maximum(dist[:, col], 1e-12)
+        u_to = q / d[:, None]
+        big_d = -2.0 * q                                        # D = S - I = 2 (S - C)
+        a = -vel / c                                            # A v / c with A = -I
+        da = np.sum(big_d * a, axis=1)
+        aa = np.sum(a * a, axis=1)
+        length0 = 2.0 * d
+        length = (da + np.sqrt(da * da + (1.0 - aa) * length0 ** 2)) / (1.0 - aa)
+        amp = strength[i] * strength[j] / length ** spreading_power
+        ok[:, col] &= (length <= max_path_m) & (np.abs(amp) >= min_amplitude) & (d > 1e-6)
+        new["path_m"].append(length)
+        new["cos_doppler"].append(np.sum(u_to * t, axis=1))
+        new["amplitude"].append(amp)
+        new["order"].append(np.full(n, 2, dtype=np.int64))
+        wl = np.full((n, kk), -1, dtype=np.int64)
+        wl[:, 0], wl[:, 1] = i, j
+        new["walls"].append(wl)
+        pts = np.full((n, kk, 2), np.nan)
+        pts[:, :2] = vertex
+        new["points"].append(pts)
+        new["bearing"].append(np.arctan2(q[:, 1], q[:, 0]))
+    merged = {key: np.concatenate([fields[key], np.stack(new[key], axis=1)], axis=1)
+              for key in new}
+    return _compact(merged, np.concatenate([valid, ok], axis=1))
+
+
+def _compact(fields: dict[str, np.ndarray], valid: NDArray[np.bool_]) -> dict[str, np.ndarray]:
+    """Keep the valid entries of each row, sorted by path length, padded as the kernel pads."""
+    key = np.where(valid, fields["path_m"], np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    count = valid.sum(axis=1).astype(np.int64)
+    kmax = int(count.max()) if count.size else 0
+    order = order[:, :kmax]
+    keep = np.arange(kmax)[None, :] < count[:, None]
+    out: dict[str, np.ndarray] = {"count": count}
+    pads = {"path_m": np.nan, "cos_doppler": np.nan, "amplitude": np.nan, "order": 0,
+            "walls": -1, "points": np.nan, "bearing": np.nan}
+    for name, pad in pads.items():
+        arr = fields[name]
+        idx = order.reshape(order.shape + (1,) * (arr.ndim - 2))
+        taken = np.take_along_axis(arr, idx, axis=1)
+        mask = keep.reshape(keep.shape + (1,) * (arr.ndim - 2))
+        out[name] = np.where(mask, taken, pad).astype(arr.dtype)
+    return out
+
+
+def padded(found: list[dict[str, object]], max_order: int) -> dict[str, np.ndarray]:
+    """One pose's echo dicts (:func:`echoes_numpy`) as the padded arrays of one row."""
+    k = len(found)
+    out: dict[str, np.ndarray] = {
+        "count": np.array([k], dtype=np.int64), "path_m": np.full((1, k), np.nan),
+        "cos_doppler": np.full((1, k), np.nan), "amplitude": np.full((1, k), np.nan),
+        "order": np.zeros((1, k), dtype=np.int64),
+        "walls": np.full((1, k, max_order), -1, dtype=np.int64),
+        "points": np.full((1, k, max_order, 2), np.nan), "bearing": np.full((1, k), np.nan)}
+    for col, e in enumerate(found):
+        for name in ("path_m", "cos_doppler", "amplitude", "order", "bearing"):
+            out[name][0, col] = e[name]
+        walls = list(e["walls"])  # type: ignore[call-overload]
+        out["walls"][0, col, :len(walls)] = walls
+        out["points"][0, col, :len(walls)] = e["points"]
+    return out
 
 
 def render_numpy(
