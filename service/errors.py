@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.jobs import JobNotFound, JobQuota, QueueFull
-from service.mapstore import MapExists, MapNotFound
+from service.mapstore import MapExists, MapInUse, MapNotFound
 from service.npzcheck import MapRejected
 from service.quotas import Busy, OverQuota
 from service.schemas import FIELD_RANGES
@@ -177,6 +177,11 @@ def install_handlers(app: FastAPI) -> None:
     async def _exists(_: Request, exc: MapExists) -> JSONResponse:
         return error_response(409, "conflict", f"map {exc.args[0]!r} exists; use overwrite",
                               "map_id")
+
+    @app.exception_handler(MapInUse)
+    async def _in_use(_: Request, exc: MapInUse) -> JSONResponse:
+        return error_response(409, "in_use", str(exc), "map_id",
+                              "a map no live session or running build uses")
 
     @app.exception_handler(SessionLimit)
     async def _limit(_: Request, exc: SessionLimit) -> JSONResponse:

@@ -15,9 +15,11 @@ import json
 import math
 import os
 import re
+import secrets
 import tempfile
 import threading
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,6 +49,14 @@ class MapNotFound(KeyError):
 
 class MapExists(Exception):
     """Upload or build onto an existing id without ``overwrite`` (409)."""
+
+
+class MapInUse(Exception):
+    """Delete of a map that live sessions (or a running build) still use (409)."""
+
+    def __init__(self, map_id: str, detail: str) -> None:
+        super().__init__(detail)
+        self.map_id = map_id
 
 
 def _read_map(path: Path) -> WallMap:
@@ -206,6 +216,40 @@ class MapStore:
             if os.path.exists(tmp):
                 os.unlink(tmp)
         return wallmap
+
+    def delete(self, map_id: str, users: Callable[[], int]) -> None:
+        """Remove the map ``map_id`` unless ``users()`` (sessions on it) is above zero.
+
+        The file is first renamed away, so no new session can load it, then ``users()`` is
+        asked; if something uses the map it is renamed back (never over a file uploaded
+        meanwhile) and :class:`MapInUse` raised. A kill between the two steps leaves a
+        hidden ``.tmp`` file that :meth:`clean_orphans` removes at start.
+
+        Raises
+        ------
+        MapNotFound
+            No map ``map_id``.
+        MapInUse
+            ``users()`` > 0 (the map is kept).
+        """
+        aside = self.directory / f".{map_id}.{secrets.token_hex(4)}.deleted.tmp"
+        try:
+            os.rename(self.path(map_id), aside)
+        except FileNotFoundError:
+            raise MapNotFound(map_id) from None
+        n = users()
+        if n > 0:
+            try:
+                os.link(aside, self.path(map_id))  # no clobbering a newer upload
+            except FileExistsError:
+                pass
+            os.unlink(aside)
+            raise MapInUse(map_id, f"{n} live session(s) use map {map_id!r}; delete them "
+                           "first")
+        os.unlink(aside)
+        with self._lock:
+            self._digests.pop(map_id, None)
+            self._infos.pop(map_id, None)
 
     def put(self, map_id: str, wallmap: WallMap) -> None:
         """Write ``wallmap`` as ``map_id`` (the map file writer is atomic)."""

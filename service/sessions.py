@@ -28,6 +28,7 @@ import os
 import secrets
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -415,6 +416,7 @@ class SessionStore:
         self._sessions: dict[str, Session] = {}
         self._guard = threading.Lock()  # protects the dict, never held during compute
         self._refused: dict[str, SessionRefused] = {}  # checkpoints whose map changed
+        self._creating: Counter[str] = Counter()  # map id -> sessions being created on it
         if directory is not None:
             directory.mkdir(parents=True, exist_ok=True)
 
@@ -436,6 +438,12 @@ class SessionStore:
                     raise SessionRefused(session_id, refused.owner, str(refused)) from None
                 raise SessionNotFound(session_id) from None
 
+    def sessions_on(self, map_id: str) -> int:
+        """Live sessions on ``map_id``, counting those being created right now."""
+        with self._guard:
+            live = sum(1 for s in self._sessions.values() if s.map_id == map_id)
+            return live + self._creating[map_id]
+
     def expires_in_s(self, session: Session) -> float:
         return max(0.0, session.last_active_at + self.idle_s - self.clock())
 
@@ -447,15 +455,22 @@ class SessionStore:
         self.expire()
         with self._guard:
             self._check_limits(owner, max_per_owner)
-        tracker = self.factory.create(map_id, spec)
-        now = self.clock()
-        session = Session(
-            id=secrets.token_hex(8), map_id=map_id, spec=spec, tracker=tracker,
-            created_at=now, last_active_at=now, owner=owner,
-        )
-        with self._guard:
-            self._check_limits(owner, max_per_owner)
-            self._sessions[session.id] = session
+            self._creating[map_id] += 1  # counted by sessions_on while the map loads
+        try:
+            tracker = self.factory.create(map_id, spec)
+            now = self.clock()
+            session = Session(
+                id=secrets.token_hex(8), map_id=map_id, spec=spec, tracker=tracker,
+                created_at=now, last_active_at=now, owner=owner,
+            )
+            with self._guard:
+                self._check_limits(owner, max_per_owner)
+                self._sessions[session.id] = session
+        finally:
+            with self._guard:
+                self._creating[map_id] -= 1
+                if self._creating[map_id] <= 0:
+                    del self._creating[map_id]
         with session.lock:
             self._checkpoint(session)
         return session

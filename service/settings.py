@@ -23,7 +23,7 @@ OMNISONAR_CHECKPOINT_FSYNC  fsync each checkpoint: survives power loss, not only
 OMNISONAR_CHECKPOINT_EVERY_BLOCKS  checkpoint every N-th block (1: every block; 0: not by count)
 OMNISONAR_CHECKPOINT_EVERY_S  also checkpoint when the last one is older than T s (0: not by time)
 OMNISONAR_API_KEYS        comma-separated client keys (empty: no keys, loopback clients only)
-OMNISONAR_ADMIN_KEYS      comma-separated admin keys: map uploads and builds, every session
+OMNISONAR_ADMIN_KEYS      comma-separated admin keys: map uploads, builds, deletes; every session
 OMNISONAR_KEYS_FILE       file of keys, one ``user <key>`` or ``admin <key>`` a line
 OMNISONAR_HOST            the address ``omnisonar serve`` binds (``127.0.0.1``)
 OMNISONAR_ALLOW_INSECURE  serve a non-loopback address without keys (``false``: refuse)

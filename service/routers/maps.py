@@ -1,7 +1,7 @@
 """``/maps`` and ``/jobs``: list, inspect, render, upload and build wall maps.
 
-Reading maps needs any key; uploading and building need an admin key, as does reading a
-build job (see :mod:`service.auth`).
+Reading maps needs any key; uploading, building and deleting need an admin key, as does
+reading a build job (see :mod:`service.auth`).
 """
 
 from __future__ import annotations
@@ -12,12 +12,13 @@ from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from service.auth import Admin, Caller
-from service.deps import get_app_settings, get_jobs, get_maps
+from service.deps import get_app_settings, get_jobs, get_maps, get_sessions
 from service.errors import ClientError
 from service.jobs import JobRecord, JobRunner
-from service.mapstore import MapNotFound, MapStore
+from service.mapstore import MapInUse, MapNotFound, MapStore
 from service.quotas import Gate
 from service.schemas import ID_PATTERN, BuildRequest, ErrorBody, Job, MapInfo, MapList
+from service.sessions import SessionStore
 from service.settings import Settings
 
 router = APIRouter(tags=["maps"])
@@ -109,6 +110,20 @@ async def upload_map(
                                 cfg.max_body_bytes // 4)
         del data
     return _info(maps, map_id)
+
+
+@router.delete("/maps/{map_id}", status_code=204, response_class=Response,
+               responses={**_ADMIN, 404: _E, 409: _E})
+def delete_map(map_id: MapIdPath, _: Admin,
+               maps: Annotated[MapStore, Depends(get_maps)],
+               sessions: Annotated[SessionStore, Depends(get_sessions)],
+               jobs: Annotated[JobRunner, Depends(get_jobs)]) -> Response:
+    """Delete a stored map (admin key). Refused (409 ``in_use``) while a live session uses
+    it or a build is writing it; delete those sessions first."""
+    if map_id in jobs.active_map_ids():
+        raise MapInUse(map_id, f"map {map_id!r} is being built")
+    maps.delete(map_id, lambda: sessions.sessions_on(map_id))
+    return Response(status_code=204)
 
 
 @router.post("/maps/build", status_code=202, response_model=Job,

@@ -162,3 +162,14 @@ def test_keys_file(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match="line 1") as exc:
             read_keys_file(f)
         assert ALICE not in str(exc.value)
+
+
+def test_map_delete_needs_an_admin_key(client: TestClient) -> None:
+    assert client.delete("/maps/room").status_code == 401
+    r = client.delete("/maps/room", headers=bearer(ALICE))
+    assert r.status_code == 403 and r.json()["error"] == "forbidden"
+    sid = new_session(client, ALICE)
+    r = client.delete("/maps/room", headers=bearer(ADMIN))  # Alice's session uses it
+    assert r.status_code == 409 and r.json()["error"] == "in_use"
+    assert client.delete(f"/sessions/{sid}", headers=bearer(ALICE)).status_code == 204
+    assert client.delete("/maps/room", headers=bearer(ADMIN)).status_code == 204

@@ -111,6 +111,8 @@ def test_http_build_queue_is_bounded(tmp_path: Path, monkeypatch: pytest.MonkeyP
             full = build("a2", "m4")
             assert full.status_code == 503 and full.headers["retry-after"], full.text
             assert full.json()["error"] == "busy"
+            busy = c.delete("/maps/m0", headers={"Authorization": "Bearer a1"})
+            assert busy.status_code == 409 and busy.json()["error"] == "in_use"  # being built
             release.set()  # the builds end: the queue takes new ones again
             deadline, status = time.monotonic() + 10, 0
             while time.monotonic() < deadline and status != 202:

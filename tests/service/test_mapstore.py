@@ -220,3 +220,55 @@ def test_overwritten_map_never_changes_a_restored_session(settings: Settings) ->
         assert c.delete(f"/sessions/{sid}").status_code == 204
         assert c.get(f"/sessions/{sid}").status_code == 404
         assert not (settings.sessions_path / f"{sid}.npz").exists()
+
+
+# -- DELETE /maps/{id} ---------------------------------------------------------------------
+def test_delete_map(client: TestClient, settings: Settings) -> None:
+    assert upload(client, map_file_bytes(), "gone").status_code == 201
+    r = client.delete("/maps/gone")
+    assert r.status_code == 204 and r.content == b""
+    assert client.get("/maps/gone").status_code == 404
+    assert "gone" not in [m["id"] for m in client.get("/maps").json()["maps"]]
+    assert stored(settings) == ["room.npz"]  # no file left, not even a hidden one
+    r = client.delete("/maps/gone")
+    assert r.status_code == 404 and r.json()["field"] == "map_id"
+    assert upload(client, map_file_bytes(), "gone").status_code == 201  # the id is free
+
+
+def test_delete_map_refused_while_a_session_uses_it(client: TestClient,
+                                                    settings: Settings) -> None:
+    before = (settings.maps_dir / "room.npz").read_bytes()
+    sid = client.post("/sessions", json=TRACKED).json()["id"]
+    r = client.delete("/maps/room")
+    assert r.status_code == 409, r.text
+    assert r.json()["error"] == "in_use" and r.json()["field"] == "map_id"
+    assert "1 live session" in r.json()["detail"]
+    assert (settings.maps_dir / "room.npz").read_bytes() == before  # kept, unchanged
+    assert stored(settings) == ["room.npz"]
+    assert client.get(f"/sessions/{sid}").status_code == 200
+    assert client.delete(f"/sessions/{sid}").status_code == 204
+    assert client.delete("/maps/room").status_code == 204
+    r = client.post("/sessions", json=TRACKED)  # as for any unknown map id
+    assert r.status_code == 422 and r.json()["field"] == "map_id", r.text
+
+
+def test_store_delete_never_clobbers_an_upload_made_meanwhile(tmp_path: Path) -> None:
+    from service.mapstore import MapInUse
+
+    maps = MapStore(tmp_path)
+    maps.path("m").write_bytes(b"old")
+    newer = b"uploaded while the delete asked who uses the map"
+
+    def users() -> int:
+        maps.path("m").write_bytes(newer)
+        return 1
+
+    with pytest.raises(MapInUse):
+        maps.delete("m", users)
+    assert maps.path("m").read_bytes() == newer
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+def test_delete_map_documented(client: TestClient) -> None:
+    op = client.get("/openapi.json").json()["paths"]["/maps/{map_id}"]["delete"]
+    assert {"204", "401", "403", "404", "409"} <= set(op["responses"])

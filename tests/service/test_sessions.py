@@ -400,3 +400,34 @@ def test_app_checkpoint_policy_from_settings_and_flush_at_shutdown(tmp_path: Pat
         assert _on_disk(tmp_path, s.id) == 0
         assert client.get("/health").status_code == 200
     assert _on_disk(tmp_path, s.id) == 1  # the lifespan's end wrote the pending block
+
+
+def test_sessions_on_counts_live_and_in_flight_sessions(tmp_path: Path) -> None:
+    """``DELETE /maps/{id}`` asks this: a session whose map is still loading counts too."""
+    import threading
+
+    store, fac = _store(tmp_path)
+    loading, release = threading.Event(), threading.Event()
+    create = fac.create
+
+    def slow_create(map_id: str, spec: FilterSpec) -> object:
+        loading.set()
+        release.wait(10)
+        return create(map_id, spec)
+
+    fac.create = slow_create  # type: ignore[method-assign, assignment]
+    t = threading.Thread(target=store.create, args=("m", SPEC))
+    t.start()
+    try:
+        assert loading.wait(10)
+        assert store.sessions_on("m") == 1 and store.sessions_on("other") == 0
+    finally:
+        release.set()
+        t.join(10)
+    assert store.sessions_on("m") == 1  # now live
+    store.delete(store.ids()[0])
+    assert store.sessions_on("m") == 0
+    fac.map_ids = set()  # a refused creation leaves no count behind
+    with pytest.raises(InvalidSpec):
+        store.create("m", SPEC)
+    assert store.sessions_on("m") == 0
