@@ -5,7 +5,9 @@ for both: (1) grid dispersion and band -- `render_paths` rebuilds an image-sourc
 path from its path table, band-limited like the FDTD's source (`grid_band`) and given each
 path's predicted dispersion along its own direction (`dispersion_phase`, `fdtd_length_m`);
 (2) paths the image-source model leaves out -- diffraction at free wall ends
-(`free_wall_ends`, `specular_path`, `edge_diffraction_paths`; geometry only, after Keller).
+(`specular_path`, `edge_diffraction_paths`; geometry only, after Keller; the wall ends and
+wedges themselves, and the image-source engine's diffraction term, are in
+`mapping.simulate.ism`).
 The geometric truth of specular paths (`specular_echo`, `valid_wall_sequences`) is shared by
 the benchmark (``benchmarks/fdtd_paper.py``) and the tests.
 
@@ -34,7 +36,6 @@ from mapping.compare._geometry import (
     GeometricEcho,
     edge_diffraction_paths,
     edge_echo_range_m,
-    free_wall_ends,
     image_point,
     leg_blocked,
     nearest_prediction,
@@ -66,7 +67,6 @@ __all__ = [
     "edge_diffraction_paths",
     "edge_echo_range_m",
     "fdtd_length_m",
-    "free_wall_ends",
     "grid_band",
     "heatmap_angle_rad",
     "image_point",

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 from mapping.compare._paths import fdtd_length_m
 from mapping.signal import SonarConfig
 from mapping.simulate.fdtd import FdtdConfig
+from mapping.simulate.ism import free_wall_ends
 
 FloatArray = NDArray[np.float64]
 
@@ -133,31 +134,6 @@ def path_length_m(points_m: ArrayLike) -> float:
     """Length of a polyline."""
     p = np.asarray(points_m, dtype=np.float64).reshape(-1, 2)
     return float(np.sum(np.hypot(*np.diff(p, axis=0).T)))
-
-
-def free_wall_ends(segments_m: ArrayLike, tol_m: float = 1e-6) -> list[tuple[int, FloatArray]]:
-    """End points of walls that touch no other wall (where a wall stops in the open).
-
-    Returns ``[(wall index, end point), ...]``; an end within ``tol_m`` of another wall
-    (its end or its interior: a corner or a T-junction) is not free.
-    """
-    seg = _segments(segments_m)
-    out: list[tuple[int, FloatArray]] = []
-    for i in range(seg.shape[0]):
-        for end in seg[i]:
-            touching = False
-            for j in range(seg.shape[0]):
-                if j == i:
-                    continue
-                a, b = seg[j]
-                e = b - a
-                u = float(np.clip(np.dot(end - a, e) / np.dot(e, e), 0.0, 1.0))
-                if np.hypot(*(a + u * e - end)) <= tol_m:
-                    touching = True
-                    break
-            if not touching:
-                out.append((i, end.copy()))
-    return out
 
 
 @dataclass(frozen=True)

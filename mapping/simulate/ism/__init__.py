@@ -7,7 +7,7 @@ geometry rather than a formula. Paths are enumerated by beam tracing, traced on 
 wall segments (occlusion, specular points) and faded in and out over 5 ms.
 
 Entry points: `IsmConfig` (order, limits, spreading ``3d`` / ``2d``, fractional delay, noise,
-reverberant tail) and `iter_ism_blocks`, the engine registered as ``"ism"`` in
+reverberant tail, edge diffraction) and `iter_ism_blocks`, the engine registered as ``"ism"`` in
 `mapping.simulate.ENGINES` (use `mapping.simulate.simulate_run`); `simulate_stretch` for a
 stretch of samples; `path_table` for the ground truth of the rendered paths.
 
@@ -18,13 +18,19 @@ Private modules: ``_config`` (`IsmConfig`, the signal a path is heard with), ``_
 (which paths, with what gain), ``_delay`` (retarded delay by Newton), ``_render`` (delays and
 gains carried to every sample), ``_kernels`` (the numba kernel summing the paths; its numpy
 twin and the per-sample reference loop are in the tests), ``_engine`` (blocks, noise,
-reverberation).
+reverberation), ``_wedges`` (diffracting edges: free wall ends and outside corners, the UTD
+coefficient), ``_diffraction`` (edge-diffracted paths: validity, gains, retarded delays).
+
+Edge diffraction (``IsmConfig.diffraction_order``, off by default): free wall ends and outside
+corners re-radiate (uniform theory of diffraction at rigid wedges), so an echo that ends at a
+wall end no longer just fades out: the total stays continuous across the shadow boundary.
 """
 
 from __future__ import annotations
 
 from mapping.simulate.ism._config import (
     IsmConfig,
+    diffraction_period,
     range_limit_m,
     signal_period,
     spreading_power,
@@ -32,6 +38,13 @@ from mapping.simulate.ism._config import (
 from mapping.simulate.ism._delay import (
     retarded_delay,
     retarded_delay_scalar,
+)
+from mapping.simulate.ism._diffraction import (
+    EdgePaths,
+    edge_delay,
+    edge_gains,
+    edge_paths,
+    edge_validity,
 )
 from mapping.simulate.ism._engine import (
     iter_ism_blocks,
@@ -58,12 +71,29 @@ from mapping.simulate.ism._render import (
 from mapping.simulate.ism._trace import (
     trace_images,
 )
+from mapping.simulate.ism._wedges import (
+    Wedges,
+    diffracting_wedges,
+    free_wall_ends,
+    transition,
+    utd_sum,
+    wedge_angle,
+)
 
 __all__ = [
+    "EdgePaths",
     "IsmConfig",
     "PreparedScene",
     "StretchPlan",
+    "Wedges",
     "candidate_images",
+    "diffracting_wedges",
+    "diffraction_period",
+    "edge_delay",
+    "edge_gains",
+    "edge_paths",
+    "edge_validity",
+    "free_wall_ends",
     "iter_ism_blocks",
     "mirror_maps",
     "path_gains",
@@ -81,4 +111,7 @@ __all__ = [
     "stretch_images",
     "trace_images",
     "traced_gains",
+    "transition",
+    "utd_sum",
+    "wedge_angle",
 ]

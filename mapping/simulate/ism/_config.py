@@ -75,6 +75,11 @@ class IsmConfig:
         Level of the tail relative to the first-order echoes at the start of the run.
     reverb_onset_s : float
         Delay where the tail starts (it fades in over 5 ms).
+    diffraction_order : int
+        Edge diffraction at free wall ends and outside corners (uniform theory of
+        diffraction, :mod:`mapping.simulate.ism._diffraction`): 0 none (the default), 1 the
+        edge alone (sonar -> edge -> sonar), 2 also with one specular reflection before or
+        after the edge.
     """
 
     order: int | None = None
@@ -94,6 +99,7 @@ class IsmConfig:
     rt60_s: float | None = None
     reverb_db: float = -20.0
     reverb_onset_s: float = 0.02
+    diffraction_order: int = 0
 
     def __post_init__(self) -> None:
         if self.order is not None and not 1 <= self.order <= 50:
@@ -147,6 +153,11 @@ class IsmConfig:
                 f"IsmConfig.reverb_onset_s must be in [0, 1) s, got {self.reverb_onset_s}"
             )
 
+        if self.diffraction_order not in (0, 1, 2):
+            raise ValueError(
+                f"IsmConfig.diffraction_order must be 0, 1 or 2, got {self.diffraction_order!r}"
+            )
+
     def to_dict(self) -> dict[str, Any]:
         """Plain dictionary of the fields (for run metadata)."""
         return asdict(self)
@@ -168,16 +179,45 @@ def signal_period(config: SonarConfig, spreading: str) -> FloatArray:
     if spreading == "3d":
         out = period.copy()
     elif spreading == "2d":
-        p = period.size
-        spec = np.fft.rfft(period)
-        f = np.fft.rfftfreq(p, 1.0 / config.fs_hz)
-        filt = np.zeros(f.size, dtype=complex)
-        filt[1:] = np.sqrt(config.carrier_hz / f[1:]) * np.exp(-1j * np.pi / 4)
-        if p % 2 == 0:
-            filt[-1] = filt[-1].real  # the Nyquist bin must stay real
-        out = np.fft.irfft(spec * filt, n=p)
+        out = np.fft.irfft(np.fft.rfft(period) * _half_integrator(config), n=period.size)
     else:
         raise ValueError(f"spreading must be one of {_SPREADINGS}, got {spreading!r}")
+    out.setflags(write=False)
+    return out
+
+
+def _half_integrator(config: SonarConfig) -> NDArray[np.complex128]:
+    """``sqrt(f_c / f) e^{-i pi/4}`` on the rfft bins of one period (0 at DC, the Nyquist
+    bin kept real): the spectrum of the 2-D Green's function's far field, and of the
+    diffraction coefficient of an edge, relative to the carrier."""
+    p = config.period_samples
+    f = np.fft.rfftfreq(p, 1.0 / config.fs_hz)
+    filt = np.zeros(f.size, dtype=complex)
+    filt[1:] = np.sqrt(config.carrier_hz / f[1:]) * np.exp(-1j * np.pi / 4)
+    if p % 2 == 0:
+        filt[-1] = filt[-1].real  # the Nyquist bin must stay real
+    return filt
+
+
+@lru_cache(maxsize=16)
+def diffraction_period(config: SonarConfig, spreading: str, keller: bool = True,
+                       quadrature: bool = False) -> FloatArray:
+    """One period of a signal an edge-diffracted path is heard with.
+
+    Far from shadow boundaries (Keller) an edge's diffraction coefficient falls as
+    ``1/sqrt(k)`` with a ``-pi/4`` phase: the diffracted signal is :func:`signal_period`
+    filtered once more by ``sqrt(f_c / f) e^{-i pi/4}`` (normalised at the carrier;
+    ``keller=True``). At a shadow boundary the coefficient's spectrum is that of the path
+    signal itself (``keller=False``); the engine mixes the two. ``quadrature``: every
+    positive frequency multiplied by ``i``, so ``a * period + b * quadrature`` is the signal
+    times the complex gain ``a + i b``.
+    """
+    spec = np.fft.rfft(signal_period(config, spreading))
+    if keller:
+        spec = spec * _half_integrator(config)
+    if quadrature:
+        spec = spec * 1j
+    out = np.fft.irfft(spec, n=config.period_samples)
     out.setflags(write=False)
     return out
 
@@ -186,6 +226,14 @@ def signal_period(config: SonarConfig, spreading: str) -> FloatArray:
 def _table(config: SonarConfig, spreading: str) -> FloatArray:
     """Periodic band-limited interpolant of :func:`signal_period` on a 32x finer grid."""
     period = signal_period(config, spreading)
+    return periodic_table(np.fft.rfft(period), period.size)
+
+
+@lru_cache(maxsize=16)
+def _diffraction_table(config: SonarConfig, spreading: str, keller: bool,
+                       quadrature: bool) -> FloatArray:
+    """Periodic band-limited interpolant of :func:`diffraction_period` on a 32x finer grid."""
+    period = diffraction_period(config, spreading, keller, quadrature)
     return periodic_table(np.fft.rfft(period), period.size)
 
 

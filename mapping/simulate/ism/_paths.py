@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from mapping.signal import SonarConfig
 from mapping.simulate._base import SceneLike
 from mapping.simulate.ism._config import IsmConfig, range_limit_m, spreading_power
+from mapping.simulate.ism._diffraction import EdgePaths, edge_paths
 from mapping.simulate.ism._images import ImageSet, candidate_images
 from mapping.simulate.ism._trace import TraceResult, trace_images
 
@@ -41,6 +42,8 @@ class PreparedScene:
         The order is automatic (enumeration may stop early at ``max_images``).
     max_images : int
         Cap on candidate images per block.
+    edges : EdgePaths or None
+        Candidate edge-diffracted paths (None: diffraction off).
     """
 
     segments: FloatArray
@@ -50,6 +53,7 @@ class PreparedScene:
     amplitude_floor: float
     automatic: bool = False
     max_images: int = 20_000
+    edges: EdgePaths | None = None
 
 
 def prepare_scene(scene: SceneLike, config: SonarConfig, engine: IsmConfig) -> PreparedScene:
@@ -64,14 +68,17 @@ def prepare_scene(scene: SceneLike, config: SonarConfig, engine: IsmConfig) -> P
     if seg.ndim != 3 or seg.shape[0] == 0:
         raise ValueError("scene must have at least one wall")
     floor = 10.0 ** (engine.energy_threshold_db / 20.0)
+    edges = edge_paths(seg, engine.diffraction_order) if engine.diffraction_order else None
     if engine.order is None:
         limit = range_limit_m(config) if engine.max_path_m is None else engine.max_path_m
         # a rigid path of length L has amplitude L**-p; beyond floor**(-1/p) nothing counts
         limit = min(limit, floor ** (-1.0 / spreading_power(engine.spreading)))
         return PreparedScene(
-            seg, refl, engine.max_order, float(limit), floor, True, engine.max_images
+            seg, refl, engine.max_order, float(limit), floor, True, engine.max_images, edges
         )
-    return PreparedScene(seg, refl, engine.order, float(np.inf), floor, False, engine.max_images)
+    return PreparedScene(
+        seg, refl, engine.order, float(np.inf), floor, False, engine.max_images, edges
+    )
 
 
 def stretch_images(prepared: PreparedScene, positions_m: FloatArray) -> ImageSet:

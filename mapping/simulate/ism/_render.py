@@ -11,15 +11,29 @@ twin of the kernel and the slow per-sample reference loop live with the tests
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mapping.signal import TABLE_UPSAMPLE, SonarConfig
 from mapping.simulate._base import PathTable, TrajectoryLike
-from mapping.simulate.ism._config import IsmConfig, _table, signal_period, spreading_power
+from mapping.simulate.ism._config import (
+    IsmConfig,
+    _diffraction_table,
+    _table,
+    diffraction_period,
+    signal_period,
+    spreading_power,
+)
 from mapping.simulate.ism._delay import retarded_delay
+from mapping.simulate.ism._diffraction import (
+    EdgePaths,
+    edge_delay,
+    edge_gains,
+    edge_validity,
+    kept_gains,
+)
 from mapping.simulate.ism._images import ImageSet
 from mapping.simulate.ism._kernels import _render
 from mapping.simulate.ism._paths import PreparedScene, traced_gains
@@ -43,6 +57,12 @@ class StretchPlan:
     gain_first_node: int
     trace: TraceResult
     trace_t_s: FloatArray
+    edge_active: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    edge_tau: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    edge_dtau: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    edge_gain: NDArray[np.complex128] = field(default_factory=lambda: np.zeros((0, 0), complex))
+    edge_gain_flat: NDArray[np.complex128] = field(
+        default_factory=lambda: np.zeros((0, 0), complex))
 
 
 def plan_stretch(
@@ -71,7 +91,7 @@ def plan_stretch(
     tt = np.arange(k0, k1 + 1, dtype=np.float64) * ht
     A, b = images.A[active], images.b[active]
     tau, dtau = retarded_delay(A, b, trajectory, tt, config.sound_speed_m_s, engine.newton_steps)
-    return StretchPlan(
+    plan = StretchPlan(
         start_sample=start_sample,
         n_samples=n_samples,
         images=images,
@@ -84,14 +104,41 @@ def plan_stretch(
         trace=trace,
         trace_t_s=tv,
     )
+    if prepared.edges is None or prepared.edges.n == 0:
+        return plan
+    return _with_edges(plan, prepared, prepared.edges, trajectory, config, engine, tt)
+
+
+def _with_edges(plan: StretchPlan, prepared: PreparedScene, edges: EdgePaths,
+                trajectory: TrajectoryLike, config: SonarConfig, engine: IsmConfig,
+                tt: FloatArray) -> StretchPlan:
+    """The plan with the edge-diffracted paths' gains (validity nodes) and delays."""
+    pos = trajectory.position(plan.trace_t_s)
+    c = config.sound_speed_m_s
+    valid = edge_validity(edges, prepared.segments, pos)
+    gains, flat = edge_gains(edges, valid, prepared.reflection, pos, config)
+    keep = kept_gains(edges, np.abs(gains) + np.abs(flat), pos,
+                      spreading_power(engine.spreading), prepared.max_path_m,
+                      prepared.amplitude_floor)
+    gains, flat = np.where(keep, gains, 0.0), np.where(keep, flat, 0.0)
+    active = np.flatnonzero(np.any(keep, axis=1))
+    sub = EdgePaths(edges.wedge[active], edges.A_in[active], edges.b_in[active],
+                    edges.A_out[active], edges.b_out[active], edges.via[active], edges.wedges)
+    tau, dtau = edge_delay(sub, trajectory, tt, c, engine.newton_steps)
+    return replace(plan, edge_active=active, edge_tau=tau, edge_dtau=dtau,
+                   edge_gain=np.ascontiguousarray(gains[active]),
+                   edge_gain_flat=np.ascontiguousarray(flat[active]))
 
 
 def render_stretch(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) -> FloatArray:
     """Received samples of a planned stretch (numba kernel)."""
     out = np.zeros(plan.n_samples)
+    half_taps = engine.sinc_half_taps if engine.fractional_delay == "sinc" else 0
+    if plan.edge_active.size:
+        out += _edge_samples(plan, config, engine, half_taps)
     if plan.active.size == 0:
         return out
-    half_taps = engine.sinc_half_taps if engine.fractional_delay == "sinc" else 0
+    specular = np.zeros(plan.n_samples)
     _render(
         plan.start_sample,
         float(config.fs_hz),
@@ -109,9 +156,45 @@ def render_stretch(plan: StretchPlan, config: SonarConfig, engine: IsmConfig) ->
         TABLE_UPSAMPLE,
         np.ascontiguousarray(signal_period(config, engine.spreading)),
         half_taps,
-        out,
+        specular,
     )
-    return out
+    return out + specular
+
+
+def _edge_samples(plan: StretchPlan, config: SonarConfig, engine: IsmConfig,
+                  half_taps: int) -> FloatArray:
+    """The diffracted paths' samples: each complex gain (Keller part, boundary part) as its
+    real part with the signal and its imaginary part with the quadrature, spreading power
+    ``p + 1/2``."""
+    total = np.zeros(plan.n_samples)
+    for keller, gains in ((True, plan.edge_gain), (False, plan.edge_gain_flat)):
+        for quadrature in (False, True):
+            gain = np.ascontiguousarray(gains.imag if quadrature else gains.real)
+            if not np.any(gain):
+                continue
+            out = np.zeros(plan.n_samples)
+            _render(
+                plan.start_sample,
+                float(config.fs_hz),
+                float(config.sound_speed_m_s),
+                spreading_power(engine.spreading) + 0.5,
+                np.ascontiguousarray(plan.edge_tau),
+                np.ascontiguousarray(plan.edge_dtau),
+                plan.tau_first_node,
+                engine.delay_grid_s,
+                gain,
+                plan.gain_first_node,
+                engine.validity_grid_s,
+                engine.fade_s / (2.0 * engine.validity_grid_s),
+                _diffraction_table(config, engine.spreading, keller, quadrature),
+                TABLE_UPSAMPLE,
+                np.ascontiguousarray(
+                    diffraction_period(config, engine.spreading, keller, quadrature)),
+                half_taps,
+                out,
+            )
+            total += out
+    return total
 
 
 def path_table(

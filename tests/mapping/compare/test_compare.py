@@ -15,7 +15,6 @@ from mapping.compare import (
     dispersion_phase,
     edge_diffraction_paths,
     fdtd_length_m,
-    free_wall_ends,
     grid_band,
     heatmap_angle_rad,
     image_point,
@@ -81,16 +80,6 @@ def test_brute_force_paths_equal_the_beam_tracer_in_an_l_room(x: float, y: float
     tr = trace_images(imgs, L_ROOM, np.ones(6), pos)
     beam = {tuple(np.round(p, 6)) for p in imgs.positions(pos)[tr.valid[:, 0], 0]}
     assert brute == beam
-
-
-def test_free_wall_ends() -> None:
-    assert free_wall_ends(L_ROOM) == []
-    ends = free_wall_ends(ONE_WALL)
-    assert [w for w, _ in ends] == [0, 0]
-    assert np.allclose([e for _, e in ends], ONE_WALL[0])
-    t_junction = np.array([[[0.0, 0.0], [2.0, 0.0]], [[1.0, 0.0], [1.0, 1.0]]])
-    assert [(w, tuple(e)) for w, e in free_wall_ends(t_junction)] == [
-        (0, (0.0, 0.0)), (0, (2.0, 0.0)), (1, (1.0, 1.0))]
 
 
 def test_edge_paths_in_front_of_one_wall() -> None:
