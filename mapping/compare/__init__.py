@@ -14,7 +14,8 @@ the benchmark (``benchmarks/fdtd_paper.py``) and the tests.
 Entry points: `compare_block` (both engines on one block -> `BlockComparison`),
 `comparison_heatmaps`, `residual_waveform`, `correlation`; heat-map bookkeeping:
 `heatmap_angle_rad` (the angle a path shows in the eq. 1 heat map), `local_maxima`,
-`window_peak`, `nearest_prediction`.
+`window_peak`, `nearest_prediction`; waveform agreement: `band_limited`, `residual_energy`,
+`lag_s`.
 
 Notes
 -----
@@ -47,18 +48,22 @@ from mapping.compare._geometry import (
     valid_wall_sequences,
 )
 from mapping.compare._paths import (
+    band_limited,
     dispersion_phase,
     fdtd_length_m,
     grid_band,
     heatmap_angle_rad,
+    lag_s,
     local_maxima,
     render_paths,
+    residual_energy,
     window_peak,
 )
 
 __all__ = [
     "BlockComparison",
     "EdgePath",
+    "band_limited",
     "GeometricEcho",
     "compare_block",
     "comparison_heatmaps",
@@ -70,12 +75,14 @@ __all__ = [
     "grid_band",
     "heatmap_angle_rad",
     "image_point",
+    "lag_s",
     "leg_blocked",
     "local_maxima",
     "nearest_prediction",
     "path_angles_rad",
     "path_length_m",
     "render_paths",
+    "residual_energy",
     "residual_waveform",
     "retarded",
     "specular_echo",

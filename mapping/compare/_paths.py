@@ -218,3 +218,40 @@ def render_paths(paths: PathTable, direction_rad: ArrayLike | None, sonar: Sonar
         w = pos - i0
         out += paths.amplitude[i] * ((1 - w) * fine[i0 % fine_n] + w * fine[(i0 + 1) % fine_n])
     return out
+
+
+# ---- waveform agreement ----------------------------------------------------------------------
+def band_limited(samples: ArrayLike, sonar: SonarConfig, fdtd: FdtdConfig) -> FloatArray:
+    """A waveform filtered by :func:`grid_band` (what the FDTD injects), circularly."""
+    x = np.asarray(samples, dtype=np.float64)
+    f = np.fft.rfftfreq(x.size, 1.0 / sonar.fs_hz)
+    out: FloatArray = np.fft.irfft(np.fft.rfft(x) * grid_band(f, sonar, fdtd), x.size)
+    return out
+
+
+def residual_energy(reference: ArrayLike, model: ArrayLike) -> float:
+    """``|reference - model|^2 / |reference|^2``: the share of the reference's energy a model
+    leaves unexplained (1 for a silent model)."""
+    r, m = np.asarray(reference, dtype=np.float64), np.asarray(model, dtype=np.float64)
+    den = float(r @ r)
+    if r.shape != m.shape or not den > 0:
+        raise ValueError("reference and model must have the same shape, reference non-zero")
+    return float((r - m) @ (r - m)) / den
+
+
+def lag_s(reference: ArrayLike, model: ArrayLike, fs_hz: float, max_lag_s: float) -> float:
+    """Delay (s) of ``reference`` relative to ``model`` at the largest circular
+    cross-correlation within ``+-max_lag_s`` (parabolic refinement; positive: the reference
+    arrives later)."""
+    r, m = np.asarray(reference, dtype=np.float64), np.asarray(model, dtype=np.float64)
+    if r.shape != m.shape or r.ndim != 1:
+        raise ValueError("reference and model must be 1-D of the same length")
+    xc = np.fft.irfft(np.fft.rfft(r) * np.conj(np.fft.rfft(m)), r.size)
+    half = max(1, int(round(max_lag_s * fs_hz)))
+    lags = np.arange(-half, half + 1)
+    vals = xc[lags % r.size]
+    i = int(np.clip(np.argmax(vals), 1, lags.size - 2))
+    y0, y1, y2 = vals[i - 1], vals[i], vals[i + 1]
+    den = y0 - 2 * y1 + y2
+    frac = 0.5 * (y0 - y2) / den if den != 0 else 0.0
+    return float((lags[i] + frac) / fs_hz)

@@ -181,9 +181,9 @@ def _image_end(paths: EdgePaths, pos: FloatArray) -> FloatArray:
     return np.where(moved[..., None], src, rcv).reshape(-1, 2)
 
 
-#: Frequencies (relative to the carrier, across the main lobe) and their number where the
-#: two-shape fit of the diffraction coefficient is made.
-_FIT_POINTS = 24
+#: Number of frequencies (across the main lobe) where the two-shape fit of the diffraction
+#: coefficient is made.
+_FIT_POINTS = 16
 
 
 def _fit_basis(config: SonarConfig) -> tuple[FloatArray, ComplexArray, ComplexArray]:
@@ -223,22 +223,26 @@ def edge_gains(paths: EdgePaths, valid: BoolArray, reflection: FloatArray,
     rcv = _apply(paths.A_out, paths.b_out, pos)
     r_in = np.maximum(np.linalg.norm(src - sub.point_m[:, None], axis=2), _MIN_LEG_M)
     r_out = np.maximum(np.linalg.norm(rcv - sub.point_m[:, None], axis=2), _MIN_LEG_M)
-    n = sub.n[:, None, None]
-    phi_src = np.minimum(wedge_angle(sub, src), sub.n[:, None] * math.pi)[..., None]
-    phi = np.minimum(wedge_angle(sub, rcv), sub.n[:, None] * math.pi)[..., None]
+    i, j = np.nonzero(valid)  # the UTD sum only where the path exists
+    n = sub.n[i][:, None]
+    phi_src = np.minimum(wedge_angle(sub, src)[i, j], sub.n[i] * math.pi)[:, None]
+    phi = np.minimum(wedge_angle(sub, rcv)[i, j], sub.n[i] * math.pi)[:, None]
     f, H, M = _fit_basis(config)
     k = 2 * math.pi * f / config.sound_speed_m_s
     k_c = 2 * math.pi * config.carrier_hz / config.sound_speed_m_s
     R = np.asarray(reflection, dtype=np.float64)
-    L = (r_in * r_out / (r_in + r_out))[..., None]
-    total = utd_sum(n, phi, phi_src, k * L, R[sub.walls[:, 0]][:, None, None],
-                    R[sub.walls[:, 1]][:, None, None])  # (P, m, J)
-    target = -total * H / (2 * n * math.sqrt(2 * math.pi * k_c))
-    coeff = target @ M.T  # (P, m, 2)
-    r_via = np.where(paths.via >= 0, R[np.maximum(paths.via, 0)], 1.0)[:, None]
-    scale = np.where(valid, r_via * (r_in + r_out) / np.sqrt(r_in * r_out), 0.0)
-    return (np.asarray(scale * coeff[..., 0], dtype=np.complex128),
-            np.asarray(scale * coeff[..., 1], dtype=np.complex128))
+    a, b = r_in[i, j], r_out[i, j]
+    L = (a * b / (a + b))[:, None]
+    total = utd_sum(n, phi, phi_src, k * L, R[sub.walls[i, 0]][:, None],
+                    R[sub.walls[i, 1]][:, None])  # (N, J)
+    coeff = (-total * H / (2 * n * math.sqrt(2 * math.pi * k_c))) @ M.T  # (N, 2)
+    r_via = np.where(paths.via >= 0, R[np.maximum(paths.via, 0)], 1.0)[i]
+    scale = r_via * (a + b) / np.sqrt(a * b)
+    keller = np.zeros((P, m), dtype=np.complex128)
+    flat = np.zeros((P, m), dtype=np.complex128)
+    keller[i, j] = scale * coeff[:, 0]
+    flat[i, j] = scale * coeff[:, 1]
+    return keller, flat
 
 
 def edge_delay(paths: EdgePaths, trajectory: TrajectoryLike, t_s: FloatArray, c: float,
