@@ -20,8 +20,13 @@ and whole-map proposals carry the prior odds of a kidnap (``FilterConfig.kidnap_
 
 Notes
 -----
-Private modules: ``_config`` (`FilterConfig`, JSON round trip included) and ``_filter`` (the
-algorithm).
+Rival hypotheses (``_rivals``: `Rivals`, `RivalParams`, `refine_poses`, `twin_evidence`):
+poses far from the estimate that explain the blocks as well or better, found each block among
+echo proposals and followed with their evidence, so a filter that settled on the wrong place
+(a kidnap along a corridor, a look-alike) does not report ``converged`` there.
+
+Private modules: ``_config`` (`FilterConfig`, JSON round trip included), ``_filter`` (the
+algorithm) and ``_rivals``.
 """
 
 from __future__ import annotations
@@ -47,13 +52,20 @@ from localization.particle_filter._filter import (
     resample,
     run_filter,
     temper_to_ess,
-    twin_evidence,
     weigh,
+)
+from localization.particle_filter._rivals import (
+    RivalParams,
+    Rivals,
+    refine_poses,
+    twin_evidence,
 )
 
 __all__ = [
     "FilterConfig",
     "ParticleFilter",
+    "RivalParams",
+    "Rivals",
     "STATE_FORMAT",
     "Steppable",
     "block_fit",
@@ -67,6 +79,7 @@ __all__ = [
     "predict",
     "propose",
     "propose_slots",
+    "refine_poses",
     "resample",
     "run_filter",
     "temper_to_ess",

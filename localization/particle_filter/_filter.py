@@ -44,7 +44,9 @@ from scipy.stats import norm
 from localization import motion, resampling
 from localization.estimate import PoseEstimate, default_start_cov, summarize
 from localization.motion import MotionNoise
+from localization.particle_filter import _rivals
 from localization.particle_filter._config import FilterConfig
+from localization.particle_filter._rivals import Rivals, twin_evidence
 from localization.sensor import (
     Measurement,
     SensorTables,
@@ -242,38 +244,6 @@ def jumped(previous: FloatArray | None, estimate: FloatArray, speed_m_s: float,
     return d > gate_m or abs(float(wrap_angle(estimate[2] - pred[2]))) > gate_rad
 
 
-_STENCIL = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0],
-                                indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArray,
-                 step: tuple[float, float, float] = (0.04, 0.04, math.radians(3.0)),
-                 rounds: int = 4) -> FloatArray:
-    """Each pose (k, 3) moved to the best echo log-likelihood on a shrinking 3x3x3 stencil
-    (``rounds`` halvings of ``step``)."""
-    cur = np.asarray(poses, dtype=np.float64).copy()
-    h = np.asarray(step, dtype=np.float64)
-    for _ in range(rounds):
-        cand = (cur[:, None, :] + _STENCIL[None] * h).reshape(-1, 3)
-        ll = explanation(tables, measurement, cand).log_likelihood.reshape(cur.shape[0], -1)
-        cur = cand.reshape(cur.shape[0], -1, 3)[np.arange(cur.shape[0]), ll.argmax(axis=1)]
-        h = h / 2.0
-    cur[:, 2] = wrap_angle(cur[:, 2])
-    return cur
-
-
-def twin_evidence(tables: SensorTables, measurement: Measurement, pose: FloatArray,
-                  twins: FloatArray, gap: FloatArray, memory: float) -> FloatArray:
-    """Evidence (nats) for ``pose`` over each of its symmetric ``twins`` (k, 3), accumulated
-    with forgetting: ``memory * gap + ll(pose) - ll(twin)`` (echo log-likelihoods of this
-    block). A symmetric room's twin explains every block alike, so its evidence stays near
-    0 until the walls in view break the symmetry; ``gap`` of another length restarts at 0."""
-    ex = explanation(tables, measurement, np.vstack([pose[None, :], twins]))
-    now = ex.log_likelihood[0] - ex.log_likelihood[1:]
-    prev = gap if gap.shape == now.shape else np.zeros_like(now)
-    return np.asarray(memory * prev + now)
-
-
 def block_fit(tables: SensorTables, measurement: Measurement, pose: FloatArray) -> float:
     """Echo model: how well ``pose`` explains the block, the mean of the share of measured
     peaks explained and the share of expected echoes heard (:func:`explanation`), in [0, 1]."""
@@ -339,6 +309,7 @@ class ParticleFilter:
         self.anchored = False
         self.last_pose: FloatArray | None = None
         self.twin_gap = np.zeros(0)
+        self.rivals = Rivals.none()
         if pose is None:
             self.reset_global()
         else:
@@ -358,6 +329,7 @@ class ParticleFilter:
         self.fresh = True
         self.anchored = False
         self.last_pose = None
+        self.rivals = Rivals.none()
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -369,6 +341,7 @@ class ParticleFilter:
         self.fresh = False
         self.anchored = True
         self.last_pose = None
+        self.rivals = Rivals.none()
         c = np.asarray(cov, dtype=np.float64)
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -442,7 +415,9 @@ class ParticleFilter:
                                                 yaw_rate_rad_s, dt_s, cfg.anchor_gate_m,
                                                 gate_rad)
         rivals = np.zeros((0, 3))
+        alive = rivals
         twin_gap = self.twin_gap
+        held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
         if echo and meas is not None and meas.n_peaks:
             fit = block_fit(self.tables, meas, estimate.pose)
             misfits = misfits + 1 if fit < cfg.fit_threshold else 0
@@ -454,6 +429,13 @@ class ParticleFilter:
                 twin_gap = twin_evidence(self.tables, meas, estimate.pose, twins,
                                          self.twin_gap, cfg.twin_memory)
                 rivals = twins[twin_gap < cfg.twin_margin_nats]
+            # poses elsewhere that explain the blocks as well (better, while anchored)
+            held = _rivals.update(self.tables, meas, estimate.pose, held, cfg.rival_params,
+                                  self.rng)
+            found = _rivals.active(held, anchored, cfg.twin_margin_nats)
+            rivals = np.vstack([rivals, found])
+            # data-driven rivals get particles only when the filter may re-localize
+            alive = rivals if cfg.relocalize else rivals[: rivals.shape[0] - found.shape[0]]
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
                               cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
@@ -472,13 +454,13 @@ class ParticleFilter:
             if n_inject:
                 poses = inject(poses, n_inject, self.tables, meas, cfg.inject_candidates,
                                self.rng)
-            if rivals.shape[0]:
+            if alive.shape[0]:
                 # keep the other explanations alive as particles (the modes are reported)
                 k = int(round(cfg.twin_fraction * n_out))
                 if k:
                     slots = self.rng.choice(n_out, size=k, replace=False)
                     poses = poses.copy()
-                    poses[slots] = rivals[self.rng.integers(0, rivals.shape[0], size=k)]
+                    poses[slots] = alive[self.rng.integers(0, alive.shape[0], size=k)]
             if reseed and meas is not None:
                 share = (1.0 if misfits >= cfg.reseed_after
                          else min(2.0 * cfg.reseed_fraction, 1.0) if misfits >= cfg.lost_after
@@ -509,6 +491,7 @@ class ParticleFilter:
         self.anchored = anchored
         self.last_pose = estimate.pose.copy()
         self.twin_gap = twin_gap
+        self.rivals = held
         if meas is not None:
             self.converged = estimate.converged and misfits == 0
             self.fresh = self.fresh and not (echo and meas.n_peaks)
@@ -531,6 +514,8 @@ class ParticleFilter:
             "last_pose": (np.full(3, np.nan) if self.last_pose is None
                           else np.asarray(self.last_pose, dtype=np.float64).copy()),
             "twin_gap": np.asarray(self.twin_gap, dtype=np.float64).copy(),
+            "rival_poses": self.rivals.poses.copy(),
+            "rival_gap": self.rivals.gap.copy(),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -563,6 +548,13 @@ class ParticleFilter:
         pf.last_pose = last if last.shape == (3,) and np.all(np.isfinite(last)) else None
         pf.twin_gap = (np.array(state["twin_gap"], dtype=np.float64) if "twin_gap" in state
                        else np.zeros(0))
+        pf.rivals = Rivals.none()
+        if "rival_poses" in state and "rival_gap" in state:
+            rp = np.array(state["rival_poses"], dtype=np.float64).reshape(-1, 3)
+            rg = np.array(state["rival_gap"], dtype=np.float64).reshape(-1)
+            if rp.shape[0] != rg.shape[0]:
+                raise ValueError("state 'rival_poses' (k, 3) and 'rival_gap' (k,) must agree")
+            pf.rivals = Rivals(rp, rg)
         return pf
 
 

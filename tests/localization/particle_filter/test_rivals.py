@@ -1,0 +1,220 @@
+"""Rival hypotheses (issue 14, "never confidently wrong"): poses far from the estimate that
+explain the blocks as well or better.
+
+The scenario that needs them: a long corridor whose end walls are farther than the sonar's
+range from its middle. A robot tracked from near the west end hears the west wall behind
+it; carried (kidnapped) to the middle it hears only the side walls. The filter's estimate
+near the west end then misses one predicted echo per block, and its fit stays above the
+threshold (the side walls are explained), so without rivals nothing says it is wrong.
+The truth for the tests: the true pose of each block (exact odometry, forward-model heat
+maps of the true walls, scored on the ideal map), and hand-placed poses for the pure
+functions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.typing import NDArray
+
+from localization.motion import predict_mean
+from localization.particle_filter import FilterConfig, ParticleFilter, Rivals
+from localization.particle_filter._rivals import active, admit, advance, far_from, prune, update
+from localization.sensor import SensorConfig, SensorTables, build_tables, prepare_measurement
+from mapping.forward import WallSet, predicted_heatmap
+from mapping.heatmap import HeatMap
+from mapping.signal import SonarConfig
+from mapping.wallmap import wallmap_from_walls
+from tests.localization.helpers import trajectory
+
+FloatArray = NDArray[np.float64]
+DT = 1.023
+SONAR = SonarConfig()
+SPEED = 0.15
+#: 16 m x 1.8 m, open at neither end; from x in (5, 11) no end wall is within 5 m.
+CORRIDOR = np.array([[0.0, 0.0, 16.0, 0.0], [16.0, 0.0, 16.0, 1.8],
+                     [16.0, 1.8, 0.0, 1.8], [0.0, 1.8, 0.0, 0.0]])
+START = np.array([0.8, 0.9, 0.0])
+CARRIED_TO = np.array([7.0, 0.9, 0.0])
+BEFORE, AFTER = 8, 8
+TIGHT = np.diag([0.03**2, 0.03**2, math.radians(3.0) ** 2])
+
+
+@pytest.fixture(scope="module")
+def tables() -> SensorTables:
+    return build_tables(wallmap_from_walls(CORRIDOR), SensorConfig(model="echo"))
+
+
+def _blocks(truth: FloatArray) -> list[HeatMap]:
+    walls = WallSet.from_array(CORRIDOR)
+    return [predicted_heatmap(walls, p, SPEED, SONAR) for p in truth]
+
+
+@pytest.fixture(scope="module")
+def kidnap() -> tuple[FloatArray, list[HeatMap]]:
+    """Blocks 0..BEFORE-1 from START, then AFTER blocks from CARRIED_TO (same odometry)."""
+    a = trajectory(START, [(SPEED, 0.0)] * (BEFORE - 1), DT)
+    b = trajectory(CARRIED_TO, [(SPEED, 0.0)] * (AFTER - 1), DT)
+    truth = np.vstack([a, b])
+    return truth, _blocks(truth)
+
+
+def _drive(pf: ParticleFilter, hms: list[HeatMap]) -> list:
+    return [pf.step(hm, SPEED, 0.0, DT if k else 0.0) for k, hm in enumerate(hms)]
+
+
+# ---- pure functions ------------------------------------------------------------------------
+def test_advance_is_dead_reckoning() -> None:
+    r = Rivals(np.array([[1.0, 2.0, 0.3], [4.0, 0.5, -2.0]]), np.array([0.5, -1.0]))
+    moved = advance(r, 0.12, 0.2, DT)
+    for p, q in zip(r.poses, moved.poses, strict=True):
+        np.testing.assert_allclose(q, predict_mean(p, 0.12, 0.2, DT), atol=1e-12)
+    np.testing.assert_array_equal(moved.gap, r.gap)
+    assert advance(Rivals.none(), 0.1, 0.0, DT).n == 0
+
+
+def test_admit_takes_the_best_far_distinct_candidates_that_beat_the_estimate() -> None:
+    est = np.array([1.0, 1.0, 0.0])
+    cand = np.array([[1.1, 1.0, 0.0],     # near the estimate: never
+                     [5.0, 1.0, 0.0],     # best
+                     [5.1, 1.0, 0.0],     # a copy of the best: no
+                     [3.0, 1.0, 0.0],     # good
+                     [8.0, 1.0, 0.0]])    # worse than the estimate: no
+    ll = np.array([9.0, 8.0, 7.9, 6.0, 4.0])
+    got = admit(cand, ll, 5.0, est[None, :], 5, 0.5, math.radians(30))
+    np.testing.assert_array_equal(got, cand[[1, 3]])
+    assert admit(cand, ll, 5.0, est[None, :], 1, 0.5, math.radians(30)).shape == (1, 3)
+    assert admit(cand, ll, 100.0, est[None, :], 5, 0.5, math.radians(30)).shape == (0, 3)
+    # a pose 40 deg off at the same place is far too (a heading look-alike)
+    turned = np.array([[1.0, 1.0, math.radians(40)]])
+    assert admit(turned, np.array([9.0]), 5.0, est[None, :], 5, 0.5,
+                 math.radians(30)).shape == (1, 3)
+
+
+def test_prune_drops_merged_beaten_offmap_and_duplicate_rivals(tables: SensorTables) -> None:
+    est = np.array([3.0, 0.9, 0.0])
+    poses = np.array([[3.2, 0.9, 0.0],      # merged into the estimate
+                      [8.0, 0.9, 0.0],      # kept (gap -4)
+                      [8.2, 0.9, 0.0],      # duplicate of the better one at 8.0
+                      [12.0, 0.9, 0.0],     # beaten by more than drop_nats
+                      [30.0, 0.9, 0.0],     # off the map
+                      [10.0, 0.9, 0.0]])    # kept (gap 2)
+    gap = np.array([-9.0, -4.0, -1.0, 11.0, -9.0, 2.0])
+    cfg = FilterConfig()
+    out = prune(tables, Rivals(poses, gap), est, cfg.rival_params)
+    np.testing.assert_array_equal(out.poses, poses[[1, 5]])
+    np.testing.assert_array_equal(out.gap, [-4.0, 2.0])
+    one = prune(tables, Rivals(poses, gap), est,
+                FilterConfig(max_rivals=1).rival_params)
+    np.testing.assert_array_equal(one.poses, poses[[1]])
+
+
+def test_active_rivals_when_anchored_must_be_better_otherwise_as_good() -> None:
+    r = Rivals(np.array([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]]), np.array([-5.0, 0.0, 5.0]))
+    np.testing.assert_array_equal(active(r, True, 3.0), r.poses[[0]])
+    np.testing.assert_array_equal(active(r, False, 3.0), r.poses[[0, 1]])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-20, 20), st.floats(-20, 20), st.floats(-math.pi, math.pi),
+       st.floats(-20, 20), st.floats(-20, 20), st.floats(-math.pi, math.pi))
+def test_far_from_is_symmetric(x1: float, y1: float, h1: float, x2: float, y2: float,
+                               h2: float) -> None:
+    a, b = np.array([x1, y1, h1]), np.array([x2, y2, h2])
+    sep = (0.5, math.radians(30))
+    assert far_from(a[None], b, *sep)[0] == far_from(b[None], a, *sep)[0]
+    assert not far_from(a[None], a, *sep)[0]
+
+
+def test_update_finds_a_rival_that_explains_better(tables: SensorTables,
+                                                   kidnap: tuple[FloatArray, list]) -> None:
+    truth, hms = kidnap
+    m = prepare_measurement(hms[BEFORE], tables.config)           # heard in mid-corridor
+    wrong = truth[BEFORE - 1].copy()                              # still near the west end
+    cfg = FilterConfig()
+    r = update(tables, m, wrong, Rivals.none(), cfg.rival_params, np.random.default_rng(0))
+    assert r.n >= 1
+    assert np.all(r.gap < 0)                                      # every rival beats it
+    assert np.all(far_from(r.poses, wrong, 0.5, math.radians(30)))
+    # at the truth, the corridor's other middle poses tie: no rival is better by the margin
+    r_true = update(tables, m, truth[BEFORE], Rivals.none(), cfg.rival_params,
+                    np.random.default_rng(0))
+    assert active(r_true, True, cfg.twin_margin_nats).shape[0] == 0
+    # a block without peaks changes nothing
+    empty = Rivals(np.array([[9.0, 0.9, 0.0]]), np.array([1.0]))
+    assert m.peaks is not None
+    m0 = dataclasses.replace(m, peaks=m.peaks._replace(r=np.zeros(0), c=np.zeros(0),
+                                                        w=np.zeros(0)))
+    assert update(tables, m0, wrong, empty, cfg.rival_params, np.random.default_rng(0)) is empty
+
+
+# ---- the filter ----------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_kidnap_along_the_corridor_is_never_reported_converged(
+        tables: SensorTables, kidnap: tuple[FloatArray, list], seed: int) -> None:
+    truth, hms = kidnap
+    pf = ParticleFilter(tables, FilterConfig(), np.random.default_rng(seed), pose=truth[0],
+                        cov=TIGHT)
+    est = _drive(pf, hms)
+    for k in range(BEFORE):                                       # tracked before
+        assert np.hypot(*(est[k].pose[:2] - truth[k, :2])) < 0.05
+    assert est[BEFORE - 1].status == "converged"
+    for k in range(BEFORE, BEFORE + AFTER):
+        off = np.hypot(*(est[k].pose[:2] - truth[k, :2]))
+        assert not (est[k].status == "converged" and off > 0.3), (k, off, est[k].status)
+
+
+def test_without_rivals_the_same_kidnap_is_confidently_wrong(
+        tables: SensorTables, kidnap: tuple[FloatArray, list]) -> None:
+    """The control: the defect the rivals fix (rival_proposals = 0)."""
+    truth, hms = kidnap
+    pf = ParticleFilter(tables, FilterConfig(rival_proposals=0), np.random.default_rng(0),
+                        pose=truth[0], cov=TIGHT)
+    est = _drive(pf, hms)
+    wrong = [k for k in range(BEFORE, BEFORE + AFTER)
+             if est[k].status == "converged"
+             and np.hypot(*(est[k].pose[:2] - truth[k, :2])) > 0.3]
+    assert len(wrong) >= AFTER // 2
+
+
+def test_tracking_in_the_corridor_middle_stays_converged(tables: SensorTables) -> None:
+    """Anchored and right: ties along the corridor are no rivals (the motion rules them out)."""
+    truth = trajectory(np.array([5.5, 0.9, 0.0]), [(SPEED, 0.0)] * 11, DT)
+    pf = ParticleFilter(tables, FilterConfig(), np.random.default_rng(0), pose=truth[0],
+                        cov=TIGHT)
+    est = _drive(pf, _blocks(truth))
+    assert all(np.hypot(*(e.pose[:2] - t[:2])) < 0.05 for e, t in zip(est, truth, strict=True))
+    assert sum(e.status == "converged" for e in est[1:]) >= len(est) - 2
+
+
+def test_rivals_survive_a_checkpoint(tables: SensorTables,
+                                     kidnap: tuple[FloatArray, list]) -> None:
+    truth, hms = kidnap
+    pf = ParticleFilter(tables, FilterConfig(), np.random.default_rng(0), pose=truth[0],
+                        cov=TIGHT)
+    _drive(pf, hms[:BEFORE + 2])
+    assert pf.rivals.n >= 1
+    back = ParticleFilter.from_state_dict(pf.state_dict(), tables)
+    np.testing.assert_array_equal(back.rivals.poses, pf.rivals.poses)
+    np.testing.assert_array_equal(back.rivals.gap, pf.rivals.gap)
+    a = pf.step(hms[BEFORE + 2], SPEED, 0.0, DT)
+    b = back.step(hms[BEFORE + 2], SPEED, 0.0, DT)
+    np.testing.assert_array_equal(a.pose, b.pose)
+    assert a.status == b.status
+    bad = pf.state_dict()
+    bad["rival_gap"] = np.zeros(pf.rivals.n + 1)
+    with pytest.raises(ValueError, match="rival_poses"):
+        ParticleFilter.from_state_dict(bad, tables)
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("rival_proposals", -1), ("max_rivals", 0), ("rival_separation_m", 0.0),
+    ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0)])
+def test_rival_settings_are_validated(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=field):
+        FilterConfig(**{field: value})
