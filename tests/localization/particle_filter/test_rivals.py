@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -216,5 +217,6 @@ def test_rivals_survive_a_checkpoint(tables: SensorTables,
     ("rival_proposals", -1), ("max_rivals", 0), ("rival_separation_m", 0.0),
     ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0)])
 def test_rival_settings_are_validated(field: str, value: float) -> None:
+    kwargs: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
-        FilterConfig(**{field: value})
+        FilterConfig(**kwargs)
