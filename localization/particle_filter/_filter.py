@@ -461,6 +461,12 @@ class ParticleFilter:
                     slots = self.rng.choice(n_out, size=k, replace=False)
                     poses = poses.copy()
                     poses[slots] = alive[self.rng.integers(0, alive.shape[0], size=k)]
+                    if anchored and cfg.kidnap_prior_nats > 0:
+                        # while anchored a rival is a kidnap hypothesis: its particles carry
+                        # the prior odds of one and must out-explain the track to take over
+                        log_w = log_w.copy()
+                        log_w[slots] -= cfg.kidnap_prior_nats
+                        log_w, _ = resampling.normalize_log_weights(log_w)
             if reseed and meas is not None:
                 share = (1.0 if misfits >= cfg.reseed_after
                          else min(2.0 * cfg.reseed_fraction, 1.0) if misfits >= cfg.lost_after
