@@ -7,11 +7,15 @@ bodies are encoded once, so the client (on the same two cores) costs little.
 (a) paced, for ``--minutes`` (default 2; the issue's 10 is ``--minutes 10``): 8 clients at
     real time (one block every 1.023 s) and 2 at 10x real time (one every 102.3 ms) at once,
     every client moving to the next of 40 maps every 20 blocks (a new session there): p50,
-    p95, p99 latency per group, errors, and the server's RSS every 2 s.
+    p95, p99 latency per group, errors, and the server's RSS and the machine's 1-minute load
+    average every 2 s (other processes share the cores: the load says how much).
 (b) saturation: 4 clients back to back, against the filter alone (heat map + filter step)
     in this process on 4 threads, interleaved round by round so both see the same machine
     load; once per checkpoint policy (after every block with fsync, the default; every 10
     blocks; off). Also one client back to back against one thread (latency per block).
+(c) decompression bombs: map uploads whose ``G`` header declares 512 MiB and 2 GiB of
+    float64 zeros (0.5 and 2 MB deflated) sent to a fresh server: status, and the server's
+    peak RSS (``VmHWM``) before and after each.
 
 Writes ``benchmarks/results/service_load.json`` and ``service_load.png``.
 Run: ``PYTHONPATH=. .venv/bin/python -m benchmarks.service_load [--minutes M]``.
@@ -20,6 +24,7 @@ Run: ``PYTHONPATH=. .venv/bin/python -m benchmarks.service_load [--minutes M]``.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
@@ -27,6 +32,7 @@ import statistics
 import tempfile
 import threading
 import time
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -210,6 +216,8 @@ def paced(maps_dir: Path, tmp: Path, blocks: Blocks, minutes: float) -> dict[str
     with ServerProcess(maps_dir, env=env) as srv:
         back_to_back(srv.url, blocks, 1, 3)  # warm-up: numba cache, FFT plans
         rss: list[tuple[float, float]] = []
+        loadavg: list[tuple[float, float]] = []
+        sessions: list[tuple[float, int]] = []
         t0 = time.perf_counter()
         until = t0 + 60 * minutes
         groups = {"8 clients at real time": (8, block_s), "2 clients at 10x": (2, block_s / 10)}
@@ -222,11 +230,17 @@ def paced(maps_dir: Path, tmp: Path, blocks: Blocks, minutes: float) -> dict[str
         for t in threads:
             t.start()
         while any(t.is_alive() for t in threads):
-            rss.append((time.perf_counter() - t0, rss_bytes(srv.pid) / 2**20))
+            now = time.perf_counter() - t0
+            rss.append((now, rss_bytes(srv.pid) / 2**20))
+            loadavg.append((now, os.getloadavg()[0]))
+            health = httpx.get(f"{srv.url}/health", timeout=10).json()
+            sessions.append((now, int(health["sessions"])))
             time.sleep(2.0)
         for t in threads:
             t.join()
-    out: dict[str, Any] = {"minutes": minutes, "maps": N_MAPS, "rss_mb": rss, "groups": {}}
+    out: dict[str, Any] = {"minutes": minutes, "maps": N_MAPS, "rss_mb": rss,
+                           "load_average_1min": loadavg, "sessions_open": sessions,
+                           "groups": {}}
     for g, group in outs.items():
         lat = np.concatenate([o["latency_ms"] for o in group])
         out["groups"][g] = {
@@ -269,6 +283,58 @@ def saturation(maps_dir: Path, tmp: Path, blocks: Blocks, rounds: int,
     return out
 
 
+def bomb_bytes(cells: int) -> bytes:
+    """A map file (the paper raster's other keys, valid) whose ``G`` declares ``cells``
+    float64 zeros, deflated; written by streaming, never holding the array."""
+    valid = io.BytesIO()
+    with tempfile.TemporaryDirectory() as d:
+        valid.write(write_map(Path(d) / "m.npz", raster_map("paper")).read_bytes())
+    buf = io.BytesIO()
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "<f8", "fortran_order": False, "shape": (cells // 1024, 1024)})
+    with zipfile.ZipFile(valid) as src, zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name in src.namelist():
+            if name != "G.npy":
+                zf.writestr(name, src.read(name))
+        with zf.open("G.npy", "w", force_zip64=True) as fh:
+            fh.write(header.getvalue())
+            zero = bytes(1 << 20)
+            for _ in range(cells * 8 // len(zero)):
+                fh.write(zero)
+    return buf.getvalue()
+
+
+def _hwm_bytes(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise ValueError(f"no VmHWM for pid {pid}")
+
+
+def bombs(maps_dir: Path, tmp: Path) -> list[dict[str, Any]]:
+    """(c): each bomb against a fresh server; peak RSS before and after the upload."""
+    env = {"OMNISONAR_DEFAULT_MAP": "false", "OMNISONAR_SESSIONS_DIR": str(tmp / "s-bomb")}
+    rows = []
+    for cells in (64 << 20, 256 << 20):
+        data = bomb_bytes(cells)
+        with ServerProcess(maps_dir, env=env) as srv:
+            before = _hwm_bytes(srv.pid)
+            r = httpx.post(f"{srv.url}/maps", params={"map_id": "bomb"}, content=data,
+                           headers={"content-type": "application/octet-stream"}, timeout=120)
+            rows.append({"declared_mib": cells * 8 / 2**20, "upload_mb": len(data) / 1e6,
+                         "status": r.status_code, "field": r.json().get("field"),
+                         "peak_rss_before_mib": before / 2**20,
+                         "peak_rss_after_mib": _hwm_bytes(srv.pid) / 2**20,
+                         "rss_after_mib": rss_bytes(srv.pid) / 2**20,
+                         "stored": (maps_dir / "bomb.npz").exists()})
+        print(f"bomb declaring {rows[-1]['declared_mib']:.0f} MiB in "
+              f"{rows[-1]['upload_mb']:.2f} MB: {r.status_code}, peak RSS "
+              f"{rows[-1]['peak_rss_before_mib']:.0f} -> {rows[-1]['peak_rss_after_mib']:.0f} MiB",
+              flush=True)
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.service_load",
                                  description=__doc__.splitlines()[0])
@@ -278,11 +344,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--blocks", type=int, default=30, help="blocks per client per round")
     args = ap.parse_args(argv)
     OUT.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         for i in range(N_MAPS):
             write_map(tmp / "maps" / f"paper-{i:02d}.npz", raster_map("paper"))
         blocks = Blocks(simulate_default_run("paper-a", seed=7, n_blocks=RUN_BLOCKS))
+        bomb = bombs(tmp / "maps", tmp)
         sat = saturation(tmp / "maps", tmp, blocks, args.rounds, args.blocks)
         load = paced(tmp / "maps", tmp, blocks, args.minutes)
     for g, c in load["groups"].items():
@@ -291,9 +359,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     rss = [m for _, m in load["rss_mb"]]
     print(f"RSS over {args.minutes:g} min with {N_MAPS} maps: {rss[0]:.0f} -> max "
           f"{max(rss):.0f} -> last {rss[-1]:.0f} MB")
+    la = [v for _, v in load["load_average_1min"]]
+    print(f"load average (1 min) before {load_before[0]:.2f}; during (a) median "
+          f"{statistics.median(la):.2f}, max {max(la):.2f}")
     summary = {
-        "particles": PARTICLES, "cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
+        "particles": PARTICLES, "cores": os.cpu_count(),
+        "load_average_before": {"1min": load_before[0], "5min": load_before[1],
+                                "15min": load_before[2]},
+        "load_average_paced": {"median": statistics.median(la), "min": min(la),
+                               "max": max(la)},
+        "load_average_end_1min": os.getloadavg()[0],
         "args": vars(args),
+        "bombs": bomb,
         "saturation": {k: {kk: vv for kk, vv in v.items() if kk != "rounds"}
                        for k, v in sat.items()},
         "saturation_rounds": {k: v["rounds"] for k, v in sat.items()},
@@ -313,12 +390,15 @@ def plot(sat: dict[str, Any], load: dict[str, Any], path: Path) -> None:
         ax1.plot(lat, np.arange(1, lat.size + 1) / lat.size,
                  label=f"{g}: p50 {c['p50_ms']:.0f}, p99 {c['p99_ms']:.0f} ms")
     ax1.set_xscale("log")
+    ax1.xaxis.set_major_locator(matplotlib.ticker.FixedLocator([10, 20, 50, 100, 200, 500,
+                                                                1000, 2000]))
+    ax1.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax1.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax1.set_xlabel("latency per block (ms)")
     ax1.set_ylabel("CDF")
     ax1.set_title(f"(a) paced, {load['minutes']:g} min, sessions over {N_MAPS} maps",
                   fontsize=9)
-    ax1.legend(fontsize=7)
+    ax1.legend(fontsize=7, loc="lower right")
     names = list(sat)
     x = np.arange(len(names))
     alone = [sat[n]["median_blocks_per_s"]["alone_4"] for n in names]
@@ -330,16 +410,24 @@ def plot(sat: dict[str, Any], load: dict[str, Any], path: Path) -> None:
                  va="bottom", fontsize=8)
     ax2.set_xticks(x, [n.replace(" (default)", "\n(default)") for n in names], fontsize=7)
     ax2.set_ylabel("blocks per second")
+    ax2.set_ylim(0, 1.35 * max(alone + http))
     ax2.set_title("(b) saturation by checkpoint policy (median of rounds)", fontsize=9)
-    ax2.legend(fontsize=7, loc="lower right")
+    ax2.legend(fontsize=7, loc="upper center", ncol=1, framealpha=0.9)
     t, mb = zip(*load["rss_mb"], strict=True)
-    ax3.plot(np.asarray(t) / 60, mb)
+    ax3.plot(np.asarray(t) / 60, mb, lw=1.0)
     ax3.set_xlabel("minutes")
     ax3.set_ylabel("server RSS (MiB)")
     ax3.set_ylim(0, max(mb) * 1.15)
-    ax3.set_title("(a) server RSS", fontsize=9)
+    ax3.set_title("(a) server RSS, and the machine's load", fontsize=9)
+    lt, la = zip(*load["load_average_1min"], strict=True)
+    ax3b = ax3.twinx()
+    ax3b.plot(np.asarray(lt) / 60, la, color="tab:gray", lw=0.8, ls="--")
+    ax3b.set_ylabel(f"1-min load average ({os.cpu_count()} cores), dashed", color="tab:gray")
+    ax3b.set_ylim(0, max(la) * 1.15)
     fig.suptitle(f"omnisonar service, {PARTICLES} particles per session, "
-                 f"{os.cpu_count()} cores shared by server and clients")
+                 f"{os.cpu_count()} cores shared by server, clients and other processes "
+                 f"(1-min load average during (a): median "
+                 f"{np.median(la):.1f}, max {max(la):.1f})", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
