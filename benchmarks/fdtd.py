@@ -16,7 +16,12 @@ steps (24 / steps_per_sweep B per update at the memory level, the rest from the 
 Writes benchmarks/results/fdtd.json and fdtd.png (and engines.png, fdtd_vs_ism.png). Runs in
 about three minutes; waits (up to 10 min) for a 1-minute load average below 0.7 before the
 paper-domain measurement, which runs first. ``--only paper`` reruns just that measurement
-and updates its key in an existing fdtd.json.
+and updates its key in an existing fdtd.json; ``--only engines`` likewise reruns the
+engine comparison (engines.png, fdtd_vs_ism.png; seconds). The engines chart's second panel,
+which built-in scenes need edge diffraction, is read from ism_diffraction.json (written by
+``benchmarks/ism_diffraction.py``) and copied into fdtd.json. On a shared machine run the
+comparison with ``NUMBA_NUM_THREADS=1``: its CPU seconds then count no spin-waiting thread (the
+image-source render is parallel; the FDTD grids here step on one thread anyway).
 """
 
 from __future__ import annotations
@@ -300,6 +305,7 @@ def compare_engines(grid_steps_m: tuple[float, ...] = (0.02, 0.014, 0.01)) -> di
 
     ism_err, ism_hm = errors(block.samples)
     out: dict[str, Any] = {"true_range_m": true_range, "true_angle_deg": np.degrees(true_angle),
+                           "numba_threads": numba.get_num_threads(),
                            "ism": {"cpu_seconds_per_block": ism_s, **ism_err,
                                    "block_s": sonar.block_s}, "fdtd": []}
     maps = {}
@@ -324,25 +330,64 @@ def compare_engines(grid_steps_m: tuple[float, ...] = (0.02, 0.014, 0.01)) -> di
                             "ism_dispersed_n_tau": err_ref["n_tau"],
                             "ism_dispersed_n_theta": err_ref["n_theta"]})
         print(out["fdtd"][-1])
+    out["diffraction_by_scene"] = _diffraction_by_scene()
     _plot_engines(out, maps, ism_hm)
     return out
 
 
+def _diffraction_by_scene() -> dict[str, Any]:
+    """Per built-in scene, diffracted vs specular energy and the cost of diffraction, as
+    measured by ``benchmarks/ism_diffraction.py`` (not recomputed here)."""
+    src = OUT / "ism_diffraction.json"
+    keys = ("scene", "path", "diffracted_db_d1", "diffracted_db_d2", "ms_per_block_d0",
+            "ms_per_block_d1", "ms_per_block_d2", "cost_ratio_d2")
+    rows = json.loads(src.read_text())["scenes"]
+    return {"source": str(src.relative_to(_HERE.parent)),
+            "rows": [{k: r[k] for k in keys} for r in rows]}
+
+
+def _diffraction_panel(ax: Any, diffraction: dict[str, Any]) -> None:
+    """Horizontal bars: diffracted / specular energy (dB) per built-in scene, cost in the label."""
+    floor_db = -45.0
+    rows = sorted(diffraction["rows"], key=lambda r: -(r["diffracted_db_d2"] or -np.inf))
+    labels = [f"{r['scene']}\ncost x{r['cost_ratio_d2']:.1f} "
+              f"({r['ms_per_block_d0']:.0f} -> {r['ms_per_block_d2']:.0f} ms/block)" for r in rows]
+    for i, r in enumerate(rows):
+        d2, d1 = r["diffracted_db_d2"], r["diffracted_db_d1"]
+        if d2 is None:
+            ax.text(floor_db + 1, i, "none heard (closed room)", va="center", fontsize=7)
+            continue
+        ax.barh(i, d2 - floor_db, left=floor_db, color="tab:purple", height=0.55,
+                label="diffraction order 2" if i == 0 else None)
+        ax.plot([d1], [i], "|", color="k", ms=14, mew=2, label="order 1" if i == 0 else None)
+        ax.text(d2 + 0.8, i, f"{d2:.0f} dB", va="center", fontsize=7)
+    ax.set_yticks(range(len(rows)), labels, fontsize=7)
+    ax.set_ylim(len(rows) - 0.5, -0.5)
+    ax.set_xlim(floor_db, 0)
+    ax.set_xlabel("diffracted / specular energy (dB; order 3, 3d, 3 blocks)", fontsize=8)
+    ax.set_title("Which built-in scenes need edge diffraction (image source)", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+
+
 def _plot_engines(res: dict[str, Any], maps: dict[float, Any], ism_hm: Any) -> None:
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, (ax, ax_d) = plt.subplots(1, 2, figsize=(12, 4.2),
+                                   gridspec_kw={"width_ratios": [1.1, 1]})
+    _diffraction_panel(ax_d, res["diffraction_by_scene"])
     ism = res["ism"]
     ax.scatter([ism["cpu_seconds_per_block"]], [ism["range_error_m"] * 1e3], color="tab:green",
                s=60, label="image source (2d)")
     fd = res["fdtd"]
     ax.plot([r["cpu_seconds_per_block"] for r in fd], [r["range_error_m"] * 1e3 for r in fd],
             "o-", color="tab:blue", label="FDTD (raw, dispersion not removed)")
-    for r in fd:
+    for i, r in enumerate(fd):  # labels left of the points, the last one below its point
         ax.annotate(f"dx {r['grid_step_m'] * 100:g} cm, corr {r['corr_with_ism_dispersed']:.3f}",
-                    (r["cpu_seconds_per_block"], r["range_error_m"] * 1e3), fontsize=7)
+                    (r["cpu_seconds_per_block"], r["range_error_m"] * 1e3), fontsize=7,
+                    xytext=(-8, -12 if i == len(fd) - 1 else 0), textcoords="offset points",
+                    ha="right", va="center")
     ax.set_xscale("log")
     ax.set_xlabel(f"CPU seconds per simulated block ({ism['block_s']:.3f} s, one-wall scene)")
     ax.set_ylabel("heat-map peak range error (mm)")
-    ax.set_title("Which engine a scene needs: cost vs agreement", fontsize=9)
+    ax.set_title("Image source vs FDTD: cost vs agreement (one wall)", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(OUT / "engines.png", dpi=120)
@@ -393,6 +438,12 @@ def main() -> None:
         res["paper_block"] = _paper_rows()
         (OUT / "fdtd.json").write_text(json.dumps(res, indent=2))
         _plot(res)
+        return
+    if sys.argv[1:] == ["--only", "engines"]:
+        res = json.loads((OUT / "fdtd.json").read_text())
+        res["engines"] = compare_engines()
+        res["engines"]["load_average"] = os.getloadavg()
+        (OUT / "fdtd.json").write_text(json.dumps(res, indent=2))
         return
     t0 = time.perf_counter()
     res = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(),
