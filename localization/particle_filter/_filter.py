@@ -432,7 +432,7 @@ class ParticleFilter:
             # poses elsewhere that explain the blocks as well (better, while anchored)
             held = _rivals.update(self.tables, meas, estimate.pose, held, cfg.rival_params,
                                   self.rng)
-            found = _rivals.active(held, anchored, cfg.twin_margin_nats)
+            found = _rivals.active(held, anchored, cfg.rival_margin_nats, cfg.twin_margin_nats)
             rivals = np.vstack([rivals, found])
             # data-driven rivals get particles only when the filter may re-localize
             alive = rivals if cfg.relocalize else rivals[: rivals.shape[0] - found.shape[0]]

@@ -13,13 +13,14 @@ missing). This module keeps a few such rivals next to the filter, each block:
    at least as well as it join (:func:`admit`, de-duplicated, at most ``max_rivals``);
 3. every rival is refined on the block (:func:`refine_poses`) and its evidence updated:
    ``gap = memory * gap + ll(estimate) - ll(rival)`` (echo log-likelihoods, nats; the twin
-   rule of :func:`twin_evidence` applied to data-driven poses);
+   rule of :func:`twin_evidence` applied to data-driven poses, with a longer memory so a
+   weak but lasting preference adds up);
 4. rivals the estimate clearly beats (``gap > drop_nats``), rivals that merged into the
    estimate and rivals off the free space are dropped (:func:`prune`).
 
 :func:`active` says which rivals count against the estimate: with a prior that rules other
 places out (a tracked start followed without a jump, *anchored*), only rivals that explained
-the recent blocks *better* by ``margin_nats``; without one, also the ties (a symmetric room,
+the recent blocks *better* by a margin; without one, also the ties (a symmetric room,
 a corridor whose ends are out of range: the honest answer there is "uncertain").
 """
 
@@ -188,8 +189,8 @@ def update(tables: SensorTables, measurement: Measurement, estimate: FloatArray,
     return prune(tables, Rivals(poses, prev + ll_est - ll), estimate, params)
 
 
-def active(rivals: Rivals, anchored: bool, margin_nats: float) -> FloatArray:
+def active(rivals: Rivals, anchored: bool, better_nats: float, tie_nats: float) -> FloatArray:
     """The rivals (k, 3) that count against the estimate: evidence gap below
-    ``-margin_nats`` (better) when anchored, below ``margin_nats`` (as good) otherwise."""
-    limit = -margin_nats if anchored else margin_nats
+    ``-better_nats`` (better) when anchored, below ``tie_nats`` (as good) otherwise."""
+    limit = -better_nats if anchored else tie_nats
     return rivals.poses[rivals.gap < limit]

@@ -117,8 +117,10 @@ def test_prune_drops_merged_beaten_offmap_and_duplicate_rivals(tables: SensorTab
 
 def test_active_rivals_when_anchored_must_be_better_otherwise_as_good() -> None:
     r = Rivals(np.array([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]]), np.array([-5.0, 0.0, 5.0]))
-    np.testing.assert_array_equal(active(r, True, 3.0), r.poses[[0]])
-    np.testing.assert_array_equal(active(r, False, 3.0), r.poses[[0, 1]])
+    np.testing.assert_array_equal(active(r, True, 3.0, 3.0), r.poses[[0]])
+    np.testing.assert_array_equal(active(r, True, 6.0, 3.0), r.poses[[]])
+    np.testing.assert_array_equal(active(r, False, 3.0, 3.0), r.poses[[0, 1]])
+    np.testing.assert_array_equal(active(r, False, 3.0, 6.0), r.poses)
 
 
 @settings(max_examples=40, deadline=None)
@@ -145,7 +147,7 @@ def test_update_finds_a_rival_that_explains_better(tables: SensorTables,
     # at the truth, the corridor's other middle poses tie: no rival is better by the margin
     r_true = update(tables, m, truth[BEFORE], Rivals.none(), cfg.rival_params,
                     np.random.default_rng(0))
-    assert active(r_true, True, cfg.twin_margin_nats).shape[0] == 0
+    assert active(r_true, True, cfg.rival_margin_nats, cfg.twin_margin_nats).shape[0] == 0
     # a block without peaks changes nothing
     empty = Rivals(np.array([[9.0, 0.9, 0.0]]), np.array([1.0]))
     assert m.peaks is not None
@@ -215,7 +217,8 @@ def test_rivals_survive_a_checkpoint(tables: SensorTables,
 
 @pytest.mark.parametrize(("field", "value"), [
     ("rival_proposals", -1), ("max_rivals", 0), ("rival_separation_m", 0.0),
-    ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0)])
+    ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0), ("rival_margin_nats", -1.0),
+    ("rival_memory", 1.0)])
 def test_rival_settings_are_validated(field: str, value: float) -> None:
     kwargs: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
