@@ -104,7 +104,8 @@ def path_gains(
 
     Zero where the path is invalid, longer than ``max_path_m`` or below the amplitude floor.
     """
-    amp = np.abs(trace.reflection) * trace.path_length_m ** (-spreading_power(spreading))
+    with np.errstate(divide="ignore", invalid="ignore"):  # invalid paths have length 0
+        amp = np.abs(trace.reflection) * trace.path_length_m ** (-spreading_power(spreading))
     keep = trace.valid & (trace.path_length_m <= prepared.max_path_m)
     keep &= amp >= prepared.amplitude_floor
     return np.where(keep, trace.reflection, 0.0)

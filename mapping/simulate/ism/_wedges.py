@@ -20,6 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import fresnel
 
+from mapping.simulate.ism._images import _check_segments
+
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 IntArray = NDArray[np.int64]
@@ -33,11 +35,10 @@ _POLE_TOL = 1e-9
 
 
 def _segments(segments_m: ArrayLike) -> FloatArray:
-    seg = np.asarray(segments_m, dtype=np.float64)
-    if seg.ndim != 3 or seg.shape[1:] != (2, 2) or seg.shape[0] < 1:
-        raise ValueError(f"segments_m must have shape (W >= 1, 2, 2), got {seg.shape}")
-    if not np.all(np.isfinite(seg)) or np.any(np.hypot(*(seg[:, 1] - seg[:, 0]).T) <= 0):
-        raise ValueError("segments_m must be finite with non-zero lengths")
+    """The image engine's segment check (:func:`_images._check_segments`), and at least one."""
+    seg = _check_segments(np.asarray(segments_m, dtype=np.float64))
+    if seg.shape[0] < 1:
+        raise ValueError("segments must hold at least one wall, got none")
     return seg
 
 
