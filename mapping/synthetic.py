@@ -204,7 +204,10 @@ def echo_truth(t_s: float, motion: Motion, target: Target, sound_speed_m_s: floa
         diff = _point_position(motion, target) - rx
         distance = float(np.linalg.norm(diff))
         direction = diff / distance
-    angle = math.acos(float(np.clip(direction @ heading, -1.0, 1.0)))
+    # atan2 of (|cross|, dot), not acos(dot): acos loses half the digits near 0 and pi
+    # (hypothesis found 6.1e-8 for a 6.0e-8 rad bearing)
+    cross = float(direction[0] * heading[1] - direction[1] * heading[0])
+    angle = math.atan2(abs(cross), float(direction @ heading))
     return EchoTruth(tau, sound_speed_m_s * tau / 2.0, distance, angle)
 
 

@@ -153,3 +153,11 @@ def test_bad_inputs_raise() -> None:
         synthetic_run(CFG, Wall(1.0, 0.0), 0.1, n_blocks=0)
     with pytest.raises(ValueError, match="ref_block"):
         synthetic_run(CFG, Wall(1.0, 0.0), 0.1, n_blocks=2, ref_block=5)
+
+
+@pytest.mark.parametrize("bearing", [5.960464477539063e-08, -1e-9, math.pi - 1e-8, 0.0, math.pi])
+def test_point_truth_angle_is_exact_near_0_and_pi(bearing: float) -> None:
+    """Regression: the angle came from acos(dot), which loses half the digits near 0 and pi
+    (hypothesis: 6.14e-8 rad for a 5.96e-8 rad bearing)."""
+    truth = echo_truth(0.0, Motion(0.3), PointReflector(2.0, bearing), C)
+    assert truth.angle_rad == pytest.approx(abs(bearing), abs=1e-12)
