@@ -81,18 +81,14 @@ def map_range_sigma(tables: SensorTables, batch: EchoBatch) -> FloatArray | None
     Per wall the path bounces on, the normal offset ``o`` and the angle ``a`` of the fit
     (``WallMap.wall_sigma``) move the echo by ``o`` and by ``s a``, ``s`` the distance of
     the bounce point from the wall's middle (the fit turns about its centre of mass, which
-    the middle stands in for); independent terms add in quadrature.
+    the middle stands in for); independent terms add in quadrature. numba kernel
+    (``_kernels._map_sigma_kernel``); its numpy twin is in ``tests/localization/sensor/naive.py``.
     """
     ws = tables.wall_sigma
     if ws.shape[0] != tables.walls.n or not np.any(ws[:, :2] > 0):
         return None
-    seg = tables.walls.segments_m
-    mid = 0.5 * (seg[:, 0] + seg[:, 1])
-    valid = batch.walls >= 0
-    wi = np.where(valid, batch.walls, 0)
-    along = np.hypot(*(np.nan_to_num(batch.points_m) - mid[wi]).transpose(3, 0, 1, 2))
-    var = np.where(valid, ws[wi, 0] ** 2 + (along * ws[wi, 1]) ** 2, 0.0).sum(axis=2)
-    return np.asarray(np.sqrt(var))
+    return _k.map_sigma_rows(np.asarray(tables.walls.segments_m, dtype=np.float64)
+                             .reshape(-1, 2, 2), ws, batch.walls, batch.points_m)
 
 
 def _terms(tables: SensorTables) -> _k._EchoTerms:

@@ -275,3 +275,88 @@ def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np
                  np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64),
                  np.ascontiguousarray(np.nan_to_num(ps), dtype=np.float64), m, t, out)
     return out
+
+
+# ---- the map's uncertainty per predicted echo (walls maps) --------------------------------
+@numba.njit(**NUMBA_FLAGS)
+def _ndtr(x: float) -> float:
+    """Standard normal cumulative distribution."""
+    return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _end_weights_kernel(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
+                        wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                        out: NDArray[np.float64]) -> None:
+    """``out[i, j]`` = product over the bounces of echo (i, j) of ``Phi(s0 / sigma0)
+    Phi(s1 / sigma1)`` (see ``_tables.end_weights``); a NaN point counts as the origin."""
+    n, k, kk = wall_idx.shape
+    for i in range(n):
+        for j in range(k):
+            w = 1.0
+            for r in range(kk):
+                wi = wall_idx[i, j, r]
+                if wi < 0:
+                    continue
+                ax, ay = seg[wi, 0, 0], seg[wi, 0, 1]
+                bx, by = seg[wi, 1, 0], seg[wi, 1, 1]
+                length = max(math.hypot(bx - ax, by - ay), 1e-12)
+                ux, uy = (bx - ax) / length, (by - ay) / length
+                px, py = points[i, j, r, 0], points[i, j, r, 1]
+                px = 0.0 if math.isnan(px) else px
+                py = 0.0 if math.isnan(py) else py
+                if end_sigma[wi, 0] > 0:
+                    w *= _ndtr(((px - ax) * ux + (py - ay) * uy) / end_sigma[wi, 0])
+                if end_sigma[wi, 1] > 0:
+                    w *= _ndtr(((bx - px) * ux + (by - py) * uy) / end_sigma[wi, 1])
+            out[i, j] = w
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _map_sigma_kernel(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
+                      wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                      out: NDArray[np.float64]) -> None:
+    """``out[i, j]`` = sqrt of the sum over the bounces of echo (i, j) of ``o**2 + (s a)**2``
+    (see ``_echo.map_range_sigma``); a NaN point counts as the origin."""
+    n, k, kk = wall_idx.shape
+    for i in range(n):
+        for j in range(k):
+            var = 0.0
+            for r in range(kk):
+                wi = wall_idx[i, j, r]
+                if wi < 0:
+                    continue
+                mx = 0.5 * (seg[wi, 0, 0] + seg[wi, 1, 0])
+                my = 0.5 * (seg[wi, 0, 1] + seg[wi, 1, 1])
+                px, py = points[i, j, r, 0], points[i, j, r, 1]
+                px = 0.0 if math.isnan(px) else px
+                py = 0.0 if math.isnan(py) else py
+                along = math.hypot(px - mx, py - my)
+                var += wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2
+            out[i, j] = math.sqrt(var)
+
+
+def end_weight_rows(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
+                    wall_idx: NDArray[np.int64], points: NDArray[np.float64]
+                    ) -> NDArray[np.float64]:
+    """:func:`_end_weights_kernel` over (n, k, K) bounces (any leading shape of wall_idx[..., K]
+    is flattened to rows)."""
+    lead = wall_idx.shape[:-1]
+    idx = np.ascontiguousarray(wall_idx.reshape(-1, 1, wall_idx.shape[-1]), dtype=np.int64)
+    pts = np.ascontiguousarray(points.reshape(-1, 1, points.shape[-2], 2), dtype=np.float64)
+    out = np.empty((idx.shape[0], 1))
+    _end_weights_kernel(np.ascontiguousarray(seg, dtype=np.float64),
+                        np.ascontiguousarray(end_sigma, dtype=np.float64), idx, pts, out)
+    return out.reshape(lead)
+
+
+def map_sigma_rows(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
+                   wall_idx: NDArray[np.int64], points: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """:func:`_map_sigma_kernel` over (n, k, K) bounces."""
+    out = np.empty(wall_idx.shape[:2])
+    _map_sigma_kernel(np.ascontiguousarray(seg, dtype=np.float64),
+                      np.ascontiguousarray(wall_sigma, dtype=np.float64),
+                      np.ascontiguousarray(wall_idx, dtype=np.int64),
+                      np.ascontiguousarray(points, dtype=np.float64), out)
+    return out

@@ -11,10 +11,9 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
-from scipy.special import ndtr
 
 from localization.sensor._config import Model, SensorConfig
-from localization.sensor._kernels import _ScoreTables
+from localization.sensor._kernels import _ScoreTables, end_weight_rows
 from mapping.forward import WallSet
 from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap
@@ -315,24 +314,13 @@ def end_weights(walls: WallSet, end_sigma: FloatArray, wall_idx: NDArray[np.int6
     w at P, ``Phi(s0 / sigma0) Phi(s1 / sigma1)`` with ``s0, s1`` the distances from P to
     the fitted ends of ``walls`` (not run on) along it, positive inside; 1 for joined ends.
     Product over a path's bounces; ``wall_idx`` (..., K) with -1 padding, ``points_m``
-    (..., K, 2)."""
+    (..., K, 2). numba kernel (``_kernels._end_weights_kernel``); its numpy twin is in
+    ``tests/localization/sensor/naive.py``."""
     if not np.any(end_sigma > 0):
         return np.ones(wall_idx.shape[:-1])
-    seg = np.asarray(walls.segments_m, dtype=np.float64)
-    valid = wall_idx >= 0
-    wi = np.where(valid, wall_idx, 0)
-    a, b = seg[wi, 0], seg[wi, 1]
-    sig0 = end_sigma[wi, 0]
-    sig1 = end_sigma[wi, 1]
-    length = np.hypot(*(b - a).transpose(-1, *range(b.ndim - 1)))
-    u = (b - a) / np.maximum(length, 1e-12)[..., None]
-    p = np.nan_to_num(points_m)
-    s0 = np.sum((p - a) * u, axis=-1)
-    s1 = np.sum((b - p) * u, axis=-1)
-    w = np.ones(s0.shape)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(sig0 > 0, ndtr(s0 / sig0), w) * np.where(sig1 > 0, ndtr(s1 / sig1), 1.0)
-    return np.asarray(np.where(valid, w, 1.0).prod(axis=-1))
+    return end_weight_rows(np.asarray(walls.segments_m, dtype=np.float64).reshape(-1, 2, 2),
+                           np.asarray(end_sigma, dtype=np.float64), np.asarray(wall_idx),
+                           np.asarray(points_m, dtype=np.float64))
 
 
 def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:

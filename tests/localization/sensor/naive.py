@@ -126,3 +126,36 @@ def naive_echo(count: NDArray[np.int64], pr: FloatArray, pc: FloatArray, pa: Flo
         heard = float(np.sum(p * best_pred) / p.sum()) if p.sum() > 0.0 else 1.0
         out[i] = (ll, explained, heard)
     return out
+
+
+def end_weights_numpy(seg: FloatArray, end_sigma: FloatArray, wall_idx: NDArray[np.int64],
+                      points_m: FloatArray) -> FloatArray:
+    """Twin of ``_kernels._end_weights_kernel`` (the numpy ``end_weights`` it replaced):
+    ``Phi(s0 / sigma0) Phi(s1 / sigma1)`` per bounce, product over a path's bounces."""
+    from scipy.special import ndtr
+
+    valid = wall_idx >= 0
+    wi = np.where(valid, wall_idx, 0)
+    a, b = seg[wi, 0], seg[wi, 1]
+    sig0, sig1 = end_sigma[wi, 0], end_sigma[wi, 1]
+    length = np.hypot(*(b - a).transpose(-1, *range(b.ndim - 1)))
+    u = (b - a) / np.maximum(length, 1e-12)[..., None]
+    p = np.nan_to_num(points_m)
+    s0 = np.sum((p - a) * u, axis=-1)
+    s1 = np.sum((b - p) * u, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = (np.where(sig0 > 0, ndtr(s0 / sig0), 1.0)
+             * np.where(sig1 > 0, ndtr(s1 / sig1), 1.0))
+    return np.asarray(np.where(valid, w, 1.0).prod(axis=-1))
+
+
+def map_sigma_numpy(seg: FloatArray, wall_sigma: FloatArray, wall_idx: NDArray[np.int64],
+                    points_m: FloatArray) -> FloatArray:
+    """Twin of ``_kernels._map_sigma_kernel`` (the numpy ``map_range_sigma`` it replaced)."""
+    mid = 0.5 * (seg[:, 0] + seg[:, 1])
+    valid = wall_idx >= 0
+    wi = np.where(valid, wall_idx, 0)
+    along = np.hypot(*(np.nan_to_num(points_m) - mid[wi]).transpose(3, 0, 1, 2))
+    var = np.where(valid, wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2,
+                   0.0).sum(axis=2)
+    return np.asarray(np.sqrt(var))

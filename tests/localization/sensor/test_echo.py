@@ -33,9 +33,11 @@ from localization.sensor import (
     soft_end_walls,
     uniform_free_poses,
 )
-from localization.sensor._kernels import (  # only to compare the kernel with its twin
+from localization.sensor._kernels import (  # only to compare the kernels with their twins
     _EchoPeaks,
     _EchoTerms,
+    end_weight_rows,
+    map_sigma_rows,
     score_echo,
 )
 from mapping.forward import ForwardParams, WallSet, echoes, echoes_batch, predicted_heatmap
@@ -44,7 +46,7 @@ from mapping.path import PAPER_SPEED_M_S
 from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap, wallmap_from_walls
 from tests.localization.helpers import ASYMMETRIC_ROOM
-from tests.localization.sensor.naive import naive_echo
+from tests.localization.sensor.naive import end_weights_numpy, map_sigma_numpy, naive_echo
 
 FloatArray = NDArray[np.float64]
 ECHO = SensorConfig(model="echo")
@@ -444,3 +446,28 @@ def test_soft_ends_run_free_ends_on_and_weigh_bounces_by_the_end_sigma() -> None
                     [[4.1, 0.0], [np.nan, np.nan]], [[0.0, 2.9], [2.0, 0.0]]])
     w = end_weights(walls, sig, idx, pts)
     np.testing.assert_allclose(w, [0.5, 0.97725, 0.15866, 0.84134], atol=1e-4)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 5), st.integers(1, 7), st.integers(1, 3),
+       st.integers(0, 2**32 - 1))
+def test_map_uncertainty_kernels_match_their_numpy_twins(n_walls: int, n: int, k: int,
+                                                         order: int, seed: int) -> None:
+    """End weights and map range sigma: numba kernels against the numpy code they replaced,
+    on random walls, sigmas (some 0), bounce lists padded with -1 / NaN, points on and off
+    the walls."""
+    rng = np.random.default_rng(seed)
+    seg = rng.uniform(-3, 3, (n_walls, 2, 2))
+    seg[:, 1] += rng.uniform(0.2, 1.0, (n_walls, 2))            # non-zero lengths
+    sig = np.where(rng.random((n_walls, 3)) < 0.3, 0.0, rng.uniform(0.001, 0.2, (n_walls, 3)))
+    idx = rng.integers(-1, n_walls, (n, k, order))
+    t = rng.uniform(-0.3, 1.3, (n, k, order))
+    pts = seg[np.maximum(idx, 0), 0] + t[..., None] * (seg[np.maximum(idx, 0), 1]
+                                                       - seg[np.maximum(idx, 0), 0])
+    pts += rng.normal(0, 0.01, pts.shape)
+    pts[idx < 0] = np.nan
+    np.testing.assert_allclose(end_weight_rows(seg, sig[:, 1:], idx, pts),
+                               end_weights_numpy(seg, sig[:, 1:], idx, pts), rtol=1e-12,
+                               atol=1e-15)
+    np.testing.assert_allclose(map_sigma_rows(seg, sig, idx, pts),
+                               map_sigma_numpy(seg, sig, idx, pts), rtol=1e-12, atol=1e-15)
