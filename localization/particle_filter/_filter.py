@@ -419,7 +419,8 @@ class ParticleFilter:
         twin_gap = self.twin_gap
         held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
         if echo and meas is not None and meas.n_peaks:
-            fit = block_fit(self.tables, meas, estimate.pose)
+            at_estimate = explanation(self.tables, meas, estimate.pose.reshape(1, 3))
+            fit = float(0.5 * (at_estimate.explained[0] + at_estimate.heard[0]))  # block_fit
             misfits = misfits + 1 if fit < cfg.fit_threshold else 0
             # a symmetric twin is a rival only when the prior does not rule it out: a tracked
             # start followed without a jump pins the robot to one side of the symmetry
@@ -431,7 +432,7 @@ class ParticleFilter:
                 rivals = twins[twin_gap < cfg.twin_margin_nats]
             # poses elsewhere that explain the blocks as well (better, while anchored)
             held = _rivals.update(self.tables, meas, estimate.pose, held, cfg.rival_params,
-                                  self.rng)
+                                  self.rng, float(at_estimate.log_likelihood[0]))
             found = _rivals.active(held, anchored, cfg.rival_margin_nats, cfg.twin_margin_nats)
             rivals = np.vstack([rivals, found])
             # data-driven rivals get particles only when the filter may re-localize

@@ -171,12 +171,16 @@ def prune(tables: SensorTables, rivals: Rivals, estimate: FloatArray,
 
 
 def update(tables: SensorTables, measurement: Measurement, estimate: FloatArray,
-           rivals: Rivals, params: RivalParams, rng: np.random.Generator) -> Rivals:
+           rivals: Rivals, params: RivalParams, rng: np.random.Generator,
+           ll_estimate: float | None = None) -> Rivals:
     """One block of rival tracking (steps 2-4 of the module docstring; ``rivals`` already
-    advanced). A block without peaks leaves the rivals as they are."""
+    advanced). ``ll_estimate``: the estimate's echo log-likelihood of this block when the
+    caller has it (computed here otherwise). A block without peaks leaves the rivals as they
+    are."""
     if params.proposals <= 0 or measurement.n_peaks == 0 or tables.walls.n == 0:
         return rivals
-    ll_est = float(explanation(tables, measurement, estimate[None, :]).log_likelihood[0])
+    ll_est = (float(explanation(tables, measurement, estimate[None, :]).log_likelihood[0])
+              if ll_estimate is None else float(ll_estimate))
     cand = echo_proposals(tables, measurement, params.proposals, rng)
     ll_cand = explanation(tables, measurement, cand).log_likelihood
     held = np.vstack([estimate[None, :], rivals.poses])

@@ -9,6 +9,7 @@ this module validates and converts.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -277,17 +278,33 @@ _NO_CORNERS = _Corners(np.zeros((0, 2), dtype=np.int64), np.zeros((0, 2)), np.ze
 
 
 def _kernel_corners(walls: WallSet, lim: _Limits, params: ForwardParams) -> _Corners:
-    """The right corners heard at their vertex (none when ``right_corner_tol_deg`` is 0)."""
+    """The right corners heard at their vertex (none when ``right_corner_tol_deg`` is 0).
+
+    Cached by the walls' coordinates and the two settings: a filter asks for the same walls
+    several times per block (measured: 0.8 ms of a 15 ms update recomputing them)."""
     if params.right_corner_tol_deg <= 0 or walls.n < 2 or lim.max_order < 2:
         return _NO_CORNERS
-    corners = right_corners(walls.segments_m, params.right_corner_tol_deg,
-                            params.corner_join_m)
+    seg = np.ascontiguousarray(walls.segments_m, dtype=np.float64)
+    return _corners_of(seg.tobytes(), seg.shape, float(params.right_corner_tol_deg),
+                       float(params.corner_join_m))
+
+
+@functools.lru_cache(maxsize=64)
+def _corners_of(segments: bytes, shape: tuple[int, ...], tol_deg: float,
+                join_m: float) -> _Corners:
+    """:func:`_kernel_corners` of walls given as the bytes of their (W, 2, 2) coordinates
+    (read-only arrays: the result is shared between calls)."""
+    seg = np.frombuffer(segments, dtype=np.float64).reshape(shape)
+    corners = right_corners(seg, tol_deg, join_m)
     if not corners:
         return _NO_CORNERS
-    pairs, vertex, ea, eb = _corner_arrays(walls.segments_m, corners)
-    skip = np.zeros((walls.n, walls.n), dtype=np.bool_)
+    pairs, vertex, ea, eb = _corner_arrays(seg, corners)
+    n = seg.shape[0]
+    skip = np.zeros((n, n), dtype=np.bool_)
     skip[pairs[:, 0], pairs[:, 1]] = True
     skip[pairs[:, 1], pairs[:, 0]] = True
+    for a in (pairs, vertex, ea, eb, skip):
+        a.flags.writeable = False
     return _Corners(pairs, vertex, ea, eb, skip)
 
 
