@@ -48,6 +48,7 @@ from localization.particle_filter import _rivals
 from localization.particle_filter._config import FilterConfig
 from localization.particle_filter._rivals import Rivals, twin_evidence
 from localization.sensor import (
+    Explanation,
     Measurement,
     SensorTables,
     echo_proposals,
@@ -247,7 +248,12 @@ def jumped(previous: FloatArray | None, estimate: FloatArray, speed_m_s: float,
 def block_fit(tables: SensorTables, measurement: Measurement, pose: FloatArray) -> float:
     """Echo model: how well ``pose`` explains the block, the mean of the share of measured
     peaks explained and the share of expected echoes heard (:func:`explanation`), in [0, 1]."""
-    ex = explanation(tables, measurement, np.asarray(pose, dtype=np.float64).reshape(1, 3))
+    return fit_of(explanation(tables, measurement,
+                              np.asarray(pose, dtype=np.float64).reshape(1, 3)))
+
+
+def fit_of(ex: Explanation) -> float:
+    """The fit of :func:`block_fit` from a one-pose :class:`Explanation`."""
     return float(0.5 * (ex.explained[0] + ex.heard[0]))
 
 
@@ -420,7 +426,7 @@ class ParticleFilter:
         held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
         if echo and meas is not None and meas.n_peaks:
             at_estimate = explanation(self.tables, meas, estimate.pose.reshape(1, 3))
-            fit = float(0.5 * (at_estimate.explained[0] + at_estimate.heard[0]))  # block_fit
+            fit = fit_of(at_estimate)
             misfits = misfits + 1 if fit < cfg.fit_threshold else 0
             # a symmetric twin is a rival only when the prior does not rule it out: a tracked
             # start followed without a jump pins the robot to one side of the symmetry

@@ -285,6 +285,13 @@ def _ndtr(x: float) -> float:
 
 
 @numba.njit(**NUMBA_FLAGS)
+def _bounce_point(points: NDArray[np.float64], i: int, j: int, r: int) -> tuple[float, float]:
+    """Bounce r of echo (i, j); a NaN coordinate (padding) counts as 0, as ``nan_to_num``."""
+    px, py = points[i, j, r, 0], points[i, j, r, 1]
+    return (0.0 if math.isnan(px) else px), (0.0 if math.isnan(py) else py)
+
+
+@numba.njit(**NUMBA_FLAGS)
 def _end_weights_kernel(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
                         wall_idx: NDArray[np.int64], points: NDArray[np.float64],
                         out: NDArray[np.float64]) -> None:
@@ -302,9 +309,7 @@ def _end_weights_kernel(seg: NDArray[np.float64], end_sigma: NDArray[np.float64]
                 bx, by = seg[wi, 1, 0], seg[wi, 1, 1]
                 length = max(math.hypot(bx - ax, by - ay), 1e-12)
                 ux, uy = (bx - ax) / length, (by - ay) / length
-                px, py = points[i, j, r, 0], points[i, j, r, 1]
-                px = 0.0 if math.isnan(px) else px
-                py = 0.0 if math.isnan(py) else py
+                px, py = _bounce_point(points, i, j, r)
                 if end_sigma[wi, 0] > 0:
                     w *= _ndtr(((px - ax) * ux + (py - ay) * uy) / end_sigma[wi, 0])
                 if end_sigma[wi, 1] > 0:
@@ -328,9 +333,7 @@ def _map_sigma_kernel(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
                     continue
                 mx = 0.5 * (seg[wi, 0, 0] + seg[wi, 1, 0])
                 my = 0.5 * (seg[wi, 0, 1] + seg[wi, 1, 1])
-                px, py = points[i, j, r, 0], points[i, j, r, 1]
-                px = 0.0 if math.isnan(px) else px
-                py = 0.0 if math.isnan(py) else py
+                px, py = _bounce_point(points, i, j, r)
                 along = math.hypot(px - mx, py - my)
                 var += wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2
             out[i, j] = math.sqrt(var)
