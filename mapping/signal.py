@@ -370,3 +370,29 @@ def checked_speed_m_s(speed_m_s: float, config: SonarConfig) -> float:
     if not math.isfinite(v) or abs(v) >= c / 10.0:
         raise ValueError(f"speed_m_s must be finite with |speed_m_s| < c/10 = {c / 10:g}, got {v}")
     return v
+
+
+def playback_signal(config: SonarConfig, fs_hz: float, n_samples: int) -> FloatArray:
+    """What the loudspeaker must play at a sound-card rate: the transmitted signal at sonar
+    times ``n / fs_hz`` for n = 0 .. n_samples - 1 (the playback clock is the sonar clock).
+
+    Parameters
+    ----------
+    config : SonarConfig
+    fs_hz : float
+        Playback rate in Hz, at least ``config.fs_hz`` (the signal fills 0 .. fs / 2).
+    n_samples : int
+        Number of samples, >= 0; play them once, not looped (a period is rarely a whole
+        number of playback samples).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 samples, peak about 1.4 (the band-limited BPSK overshoots its +-1 samples).
+    """
+    if not (isinstance(fs_hz, int | float) and math.isfinite(fs_hz) and fs_hz >= config.fs_hz):
+        raise ValueError(f"fs_hz must be a finite rate >= config.fs_hz = {config.fs_hz:g}, "
+                         f"got {fs_hz!r}")
+    if not (isinstance(n_samples, int | np.integer) and n_samples >= 0):
+        raise ValueError(f"n_samples must be an integer >= 0, got {n_samples!r}")
+    return transmitted_at(np.arange(n_samples) / float(fs_hz), config)
