@@ -5,7 +5,8 @@ poses of a `mapping.run.Run`), map files (``omnisonar-map-2``, `read_map` / `wri
 with a SHA-256 checksum, and `file_sha256`; `read_map` reads ``omnisonar-map-1`` too), the
 ROS map_server export (`write_ros_map`, rasterized from the walls when the map has walls;
 `read_pgm`), GeoJSON of the walls (`write_geojson`), and the files of real recordings (mono
-WAV, `read_wav_mono` / `write_wav`; the pose-log CSV, `read_pose_csv` / `write_pose_csv`).
+WAV, `read_wav_mono` / `write_wav`; raw WAVs at any rate, `read_wav_raw`; the pose-log CSV,
+`read_pose_csv` / `write_pose_csv`).
 Every writer goes through the atomic writes (`atomic_write`, `atomic_write_bytes`,
 `atomic_savez`): a temporary name beside the target, then a rename, so a killed process leaves
 the old file or the new one, never a truncated file. Readers refuse a foreign or truncated file
@@ -36,8 +37,10 @@ from mapping.files._map import (
     write_ros_map,
 )
 from mapping.files._recording import (
+    RawWav,
     read_pose_csv,
     read_wav_mono,
+    read_wav_raw,
     write_pose_csv,
     write_wav,
 )
@@ -57,6 +60,8 @@ __all__ = [
     "read_pose_csv",
     "read_run",
     "read_wav_mono",
+    "read_wav_raw",
+    "RawWav",
     "write_geojson",
     "write_map",
     "write_pose_csv",

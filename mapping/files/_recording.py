@@ -1,4 +1,4 @@
-"""Files of real recordings: mono WAV at the sonar rate and the pose-log CSV.
+"""Files of real recordings: mono WAV (at the sonar rate, or raw at any rate) and the pose CSV.
 
 Pose CSV: a header row naming at least the columns ``t_s, x_m, y_m, heading_rad, speed_m_s``
 (any order, extra columns ignored), then one row per pose, times strictly increasing::
@@ -17,6 +17,7 @@ import csv
 import io
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -78,8 +79,19 @@ def write_pose_csv(path: str | os.PathLike[str], log: PoseLog) -> Path:
     return path
 
 
-def read_wav_mono(path: str | os.PathLike[str], fs_hz: float) -> NDArray[np.float64]:
-    """Samples of a mono WAV recorded at ``fs_hz``, as float64 in [-1, 1] for PCM."""
+@dataclass(frozen=True)
+class RawWav:
+    """A mono WAV as read by :func:`read_wav_raw`: samples (float64, PCM scaled to [-1, 1)),
+    the file's rate in Hz, and ``full_scale``: the largest magnitude the format holds
+    (``32767 / 32768`` for 16-bit PCM), for clipping detection; None for float WAVs."""
+
+    samples: NDArray[np.float64]
+    fs_hz: float
+    full_scale: float | None
+
+
+def read_wav_raw(path: str | os.PathLike[str]) -> RawWav:
+    """A mono WAV at any rate, with what clipping detection needs (see :class:`RawWav`)."""
     from scipy.io import wavfile
 
     path = Path(path)
@@ -91,16 +103,25 @@ def read_wav_mono(path: str | os.PathLike[str], fs_hz: float) -> NDArray[np.floa
         raise ValueError(f"{path}: not a readable WAV file ({exc})") from exc
     if data.ndim != 1:
         raise ValueError(f"{path}: must be mono, has {data.shape[1]} channels")
-    if rate != fs_hz:
-        raise ValueError(f"{path}: sample rate must be the sonar rate {fs_hz:g} Hz, got {rate} Hz")
     if data.dtype == np.uint8:
-        return (data.astype(np.float64) - 128.0) / 128.0
+        return RawWav((data.astype(np.float64) - 128.0) / 128.0, float(rate), 127.0 / 128.0)
     if np.issubdtype(data.dtype, np.integer):
-        return data.astype(np.float64) / float(-np.iinfo(data.dtype).min)
+        info = np.iinfo(data.dtype)
+        scale = float(-info.min)
+        return RawWav(data.astype(np.float64) / scale, float(rate), info.max / scale)
     out = data.astype(np.float64)
     if not np.all(np.isfinite(out)):
         raise ValueError(f"{path}: contains NaN or inf samples")
-    return out
+    return RawWav(out, float(rate), None)
+
+
+def read_wav_mono(path: str | os.PathLike[str], fs_hz: float) -> NDArray[np.float64]:
+    """Samples of a mono WAV recorded at ``fs_hz``, as float64 in [-1, 1] for PCM."""
+    wav = read_wav_raw(path)
+    if wav.fs_hz != fs_hz:
+        raise ValueError(f"{Path(path)}: sample rate must be the sonar rate {fs_hz:g} Hz, "
+                         f"got {wav.fs_hz:g} Hz")
+    return wav.samples
 
 
 def write_wav(path: str | os.PathLike[str], samples: NDArray[np.floating], fs_hz: float) -> Path:

@@ -1,12 +1,12 @@
-"""Real recordings -> run blocks and odometry, and back (issue 3, item 5). Pure array functions.
+"""Pose logs and blocks: a sonar stream's blocks and their odometry, and back (issue 3, item 5).
 
-A real recording is a mono microphone stream at the sonar rate plus a pose log (time, x, y,
-heading, speed). The stream must start on a transmission period boundary (sample 0 of the
-recording is emitted-aligned with sample 0 of the transmitted sequence, the time convention of
-:mod:`mapping.signal`), so block ``k`` is samples ``k B .. (k + 1) B - 1`` and starts at
-``t = k B / fs``. For each block the run file needs (see :mod:`mapping.runfile`):
+A stream already at the sonar rate and period-aligned (sample 0 emitted-aligned with sample 0
+of the transmitted sequence, the time convention of :mod:`mapping.signal`) is cut into blocks
+``k B .. (k + 1) B - 1``; block ``k`` starts at ``t = k B / fs`` unless the caller gives the
+start times (the raw import does: block starts on the recording's clock). For each block the
+run file needs (see :mod:`mapping.run`):
 
-- ``pose``: the logged pose interpolated to the block midpoint ``(k + 1/2) B / fs``
+- ``pose``: the logged pose interpolated to the block midpoint (start + block_s / 2)
   (x and y linearly, heading along the shorter arc between log rows);
 - ``speed_m_s``: the logged speed (linear between rows) averaged over the block;
 - ``yaw_rate_rad_s``: the heading change across the block divided by its duration.
@@ -138,7 +138,8 @@ def _speed_integral(log: PoseLog, t: FloatArray) -> FloatArray:
     return cum[k] + v[k] * dt + 0.5 * slope * dt * dt
 
 
-def block_odometry(log: PoseLog, n_blocks: int, block_s: float) -> BlockOdometry:
+def block_odometry(log: PoseLog, n_blocks: int, block_s: float,
+                   start_s: ArrayLike | None = None) -> BlockOdometry:
     """Per-block run values from a pose log (see the module docstring).
 
     Parameters
@@ -146,9 +147,13 @@ def block_odometry(log: PoseLog, n_blocks: int, block_s: float) -> BlockOdometry
     log : PoseLog
         The pose log.
     n_blocks : int
-        Number of blocks, >= 1; block k spans ``[k block_s, (k + 1) block_s)``.
+        Number of blocks, >= 1.
     block_s : float
-        Block duration in seconds (``SonarConfig.block_s``), > 0.
+        Block duration in seconds on the log's clock, > 0 (``SonarConfig.block_s``, or that
+        times ``1 + clock_offset_ppm * 1e-6`` for a raw recording).
+    start_s : array_like, shape (n_blocks,), optional
+        Block start times on the log's clock, finite; default ``k * block_s`` (block k spans
+        ``[k block_s, (k + 1) block_s)``).
 
     Returns
     -------
@@ -159,14 +164,20 @@ def block_odometry(log: PoseLog, n_blocks: int, block_s: float) -> BlockOdometry
     Raises
     ------
     ValueError
-        If a block midpoint lies outside the log, naming the block.
+        If a block midpoint lies outside the log, naming the block, or ``start_s`` has the
+        wrong shape or is not finite.
     """
     if n_blocks < 1:
         raise ValueError(f"n_blocks must be >= 1, got {n_blocks}")
     if not block_s > 0:
         raise ValueError(f"block_s must be > 0, got {block_s}")
-    k = np.arange(n_blocks, dtype=np.float64)
-    t0, mid = k * block_s, (k + 0.5) * block_s
+    if start_s is None:
+        t0 = np.arange(n_blocks, dtype=np.float64) * block_s
+    else:
+        t0 = np.asarray(start_s, dtype=np.float64)
+        if t0.shape != (n_blocks,) or not np.all(np.isfinite(t0)):
+            raise ValueError(f"start_s must be {n_blocks} finite times, got shape {t0.shape}")
+    mid = t0 + 0.5 * block_s
     try:
         pose = poses_at(log, mid)
     except ValueError as exc:
