@@ -5,8 +5,8 @@ wants: wall echoes at the sonar rate, sample 0 on a period boundary, no direct w
 recording differs; :func:`simulate_raw` adds each difference on request (:class:`RawConfig`,
 every effect off by default so tests can switch one on at a time) and returns a
 :class:`RawRecording` with a pose log and the ground truth. :func:`iter_raw_chunks` is the
-same as a generator. The signal to play through the loudspeaker is
-:func:`mapping.signal.playback_signal`.
+same as a generator (:func:`assemble_raw` joins its chunks). The signal to play through the
+loudspeaker is :func:`mapping.signal.playback_signal`.
 
 Conventions (shared with the raw importer, :mod:`mapping.recording`)
 --------------------------------------------------------------------
@@ -65,6 +65,7 @@ from mapping.simulate.raw._stream import (
     RawChunk,
     RawRecording,
     RawTruth,
+    assemble_raw,
     iter_raw_chunks,
     pose_log,
     propagation_speed,
@@ -79,6 +80,7 @@ __all__ = [
     "RawConfig",
     "RawRecording",
     "RawTruth",
+    "assemble_raw",
     "band_sos",
     "iter_raw_chunks",
     "pose_log",

@@ -315,6 +315,13 @@ def simulate_raw(
         Naming the argument or field that is out of range or not modelled.
     """
     chunks = list(iter_raw_chunks(scene, trajectory, config, duration_s, engine, raw, rng))
+    return assemble_raw(chunks, trajectory, config, duration_s, raw)
+
+
+def assemble_raw(chunks: list[RawChunk], trajectory: TrajectoryLike, config: SonarConfig,
+                 duration_s: float, raw: RawConfig) -> RawRecording:
+    """Join the chunks of :func:`iter_raw_chunks` (in order) into a :class:`RawRecording` with
+    its pose log and ground truth (for callers that show progress while the chunks come)."""
     c = propagation_speed(config, raw)
     delays, gains = static_paths(raw, c)
     rate = raw.fs_hz * (1.0 + raw.clock_offset_ppm * 1e-6)
