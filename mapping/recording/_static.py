@@ -67,19 +67,18 @@ def gate_mask(n: int, delays_samples: FloatArray, half_width: float,
 
 def vertical_delays_s(sonar_height_m: float | None, ceiling_height_m: float | None,
                       transducer_offset_m: float, c: float, max_delay_s: float) -> FloatArray:
-    """Delays of the pure vertical bounces (floor, ceiling and their repeats) below
-    ``max_delay_s``: ``sqrt(dz^2 + offset^2) / c`` for the vertical image offsets ``dz`` of a
-    sonar at ``h`` between a floor at 0 and a ceiling at ``H`` (2h, 2(H - h), 2H, ... ; only
-    2h without a ceiling, only 2(H - h) without a floor height)."""
+    """Delays of the pure vertical bounces below ``max_delay_s``: ``sqrt(dz^2 + offset^2) / c``
+    for the vertical image offsets ``dz`` of a sonar at ``h`` between a floor at 0 and a
+    ceiling at ``H`` with up to three bounces (2h, 2(H - h), 2H, 2h + 2H, 2(H - h) + 2H, 4H);
+    only 2h without a ceiling."""
     h, big_h = sonar_height_m, ceiling_height_m
     dz: list[float] = []
-    max_dz = c * max_delay_s
     if h is not None and big_h is None:
         dz = [2.0 * h]
     elif big_h is not None:
         if h is None:
             raise ValueError("ceiling_height_m needs sonar_height_m (the sonar's height)")
-        for m in range(int(max_dz / (2.0 * big_h)) + 2):
+        for m in range(2):  # up to two vertical bounces; higher orders are weak
             dz += [2.0 * h + 2.0 * m * big_h, 2.0 * (big_h - h) + 2.0 * m * big_h,
                    2.0 * (m + 1) * big_h]
     d = np.sqrt(np.asarray(dz) ** 2 + transducer_offset_m ** 2) / c

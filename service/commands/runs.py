@@ -1,5 +1,8 @@
 """``omnisonar`` subcommands for runs and their inputs: signal, scenes, import-run, export-run.
 
+``import-run --raw`` imports what a sound card recorded (:func:`mapping.recording.import_raw`)
+and prints its report as text or ``--json``.
+
 Also the helpers the other subcommand modules share: :func:`_load_config` (SonarConfig
 from a JSON file), :func:`resolve_scene` and :func:`resolve_path` (``builtin:NAME`` or a
 scene file). An edge: parses, reads and writes files, prints; no computation.
@@ -9,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,9 +33,15 @@ def _load_config(path: str | None) -> SonarConfig:
 
 # ---- signal ---------------------------------------------------------------------------
 def add_signal(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("signal", help="write one block of the transmitted signal as a WAV")
+    p = sub.add_parser("signal", help="write the transmitted signal as a WAV: one block at the "
+                       "sonar rate, or with --rate what a loudspeaker plays")
     p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
-    p.add_argument("--out", required=True, help="output WAV (float32, mono, at fs)")
+    p.add_argument("--out", required=True, help="output WAV (float32, mono)")
+    p.add_argument("--rate", type=int, metavar="HZ",
+                   help="write the playback signal at this sound-card rate (e.g. 48000), "
+                   "scaled to a peak of 0.5; play it once, not looped")
+    p.add_argument("--seconds", type=float, default=120.0,
+                   help="duration of the playback signal (with --rate)")
     p.set_defaults(func=_cmd_signal)
 
 
@@ -40,13 +49,23 @@ def _cmd_signal(args: argparse.Namespace) -> int:
     from scipy.io import wavfile
 
     config = _load_config(args.config)
-    block = tx_block(config).astype(np.float32)
+    if args.rate is None:
+        block = tx_block(config).astype(np.float32)
+        rate = int(config.fs_hz)
+        what = (f"({config.block_s:.4f} s, M={config.repetitions}, "
+                f"L={config.sequence_length})")
+    else:
+        from mapping.signal import playback_signal
+
+        if not 0 < args.seconds <= 3600:
+            raise ValueError(f"--seconds must lie in (0, 3600], got {args.seconds}")
+        x = playback_signal(config, float(args.rate), int(round(args.seconds * args.rate)))
+        block = (0.5 * x / np.max(np.abs(x))).astype(np.float32)
+        rate = args.rate
+        what = f"({args.seconds:g} s of playback, peak 0.5)"
     out = Path(args.out)
-    atomic_write(out, lambda fh: wavfile.write(fh, int(config.fs_hz), block), private=False)
-    print(
-        f"wrote {out}: {block.size} samples at {config.fs_hz:g} Hz "
-        f"({config.block_s:.4f} s, M={config.repetitions}, L={config.sequence_length})"
-    )
+    atomic_write(out, lambda fh: wavfile.write(fh, rate, block), private=False)
+    print(f"wrote {out}: {block.size} samples at {rate:g} Hz {what}")
     return 0
 
 
@@ -108,18 +127,52 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def add_import_run(sub: argparse._SubParsersAction) -> None:
+    from mapping.recording import DEFAULT_TRANSDUCER_OFFSET_M, STATIC_REMOVAL_METHODS
+
     p = sub.add_parser("import-run", help="real recording (WAV + pose CSV) -> run file")
-    p.add_argument("--wav", required=True, help="mono WAV at the sonar rate, starting on a "
-                   "transmission period boundary")
+    p.add_argument("--wav", required=True, help="mono WAV: with --raw, what the sound card "
+                   "recorded (any rate >= the sonar rate); without, a stream at the sonar rate "
+                   "starting on a transmission period boundary, direct wave removed")
     p.add_argument("--poses", required=True,
-                   help="CSV with columns t_s,x_m,y_m,heading_rad,speed_m_s")
+                   help="CSV with columns t_s,x_m,y_m,heading_rad,speed_m_s (times on the "
+                   "WAV's clock, first sample = 0 s)")
     p.add_argument("--out", required=True, help="output run file (.npz)")
     p.add_argument("--config", help="SonarConfig JSON file (default: paper Table 1)")
     p.add_argument("--blocks", type=int, help="use only the first N blocks")
+    raw = p.add_argument_group("raw recordings (--raw)")
+    raw.add_argument("--raw", action="store_true",
+                     help="the WAV is a raw recording: estimate latency and clock offset from "
+                     "the direct path, resample, remove the direct wave and static echoes")
+    raw.add_argument("--calibration", metavar="CAL.wav",
+                     help="a raw recording made standing still (or in the open) for "
+                     "--static calibration")
+    raw.add_argument("--static", choices=STATIC_REMOVAL_METHODS,
+                     help="static removal: run = everything static (also walls parallel to a "
+                     "straight path), calibration = what CAL.wav heard, gated = direct path, "
+                     "body and (with heights) floor/ceiling only (default: calibration with "
+                     "--calibration, else run)")
+    raw.add_argument("--offset", type=float, default=DEFAULT_TRANSDUCER_OFFSET_M, metavar="M",
+                     help="loudspeaker-microphone distance in m")
+    raw.add_argument("--sonar-height", type=float, metavar="M",
+                     help="sonar height above the floor in m (gated: removes floor echoes)")
+    raw.add_argument("--ceiling-height", type=float, metavar="M",
+                     help="ceiling height in m (gated, with --sonar-height)")
+    raw.add_argument("--temperature", type=float, metavar="C",
+                     help="air temperature in deg C: sets the speed of sound (default: the "
+                     "config's)")
+    raw.add_argument("--json", action="store_true",
+                     help="print the import report as one JSON object")
     p.set_defaults(func=_cmd_import_run)
 
 
 def _cmd_import_run(args: argparse.Namespace) -> int:
+    if args.raw:
+        return _cmd_import_raw(args)
+    given = [f"--{n.replace('_', '-')}" for n in ("calibration", "static", "sonar_height",
+                                                  "ceiling_height", "temperature", "json")
+             if getattr(args, n) not in (None, False)]
+    if given:
+        raise ValueError(f"{', '.join(given)} only apply to raw recordings: add --raw")
     from mapping.files import read_pose_csv, read_wav_mono, write_run
     from mapping.recording import block_odometry, split_blocks
     from mapping.run import Run
@@ -148,6 +201,77 @@ def _cmd_import_run(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {run.n_blocks} blocks of {config.block_samples} samples "
           f"({dropped} trailing samples unused)")
     return 0
+
+
+def _cmd_import_raw(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from mapping.files import read_pose_csv, read_wav_raw, write_run
+    from mapping.recording import RawImportOptions, StaticRemoval, import_raw
+    from service.jsonout import strict_json
+
+    config = _load_config(args.config)
+    method: StaticRemoval = args.static or ("calibration" if args.calibration else "run")
+    options = RawImportOptions(
+        transducer_offset_m=args.offset, static_removal=method,
+        sonar_height_m=args.sonar_height, ceiling_height_m=args.ceiling_height,
+        temperature_c=args.temperature)
+    if method == "calibration" and not args.calibration:
+        raise ValueError("--static calibration needs --calibration CAL.wav")
+    wav = read_wav_raw(args.wav)
+    log = read_pose_csv(args.poses)
+    cal = read_wav_raw(args.calibration) if args.calibration else None
+    try:
+        run, report = import_raw(wav.samples, wav.fs_hz, log, config, options,
+                                 calibration=None if cal is None else (cal.samples, cal.fs_hz),
+                                 full_scale=wav.full_scale)
+    except ValueError as exc:
+        raise ValueError(f"{args.wav}: {exc}") from None
+    if args.blocks is not None:
+        if not 1 <= args.blocks <= run.n_blocks:
+            raise ValueError(f"--blocks must be in 1..{run.n_blocks}, got {args.blocks}")
+        run = replace(run, samples=run.samples[: args.blocks], t_s=run.t_s[: args.blocks],
+                      speed_m_s=run.speed_m_s[: args.blocks],
+                      yaw_rate_rad_s=run.yaw_rate_rad_s[: args.blocks],
+                      pose=run.pose[: args.blocks])
+    run = replace(run, meta={**run.meta, "wav": Path(args.wav).name,
+                             "poses": Path(args.poses).name})
+    out = write_run(args.out, run)
+    if args.json:
+        print(strict_json({"out": str(out), "blocks_written": run.n_blocks,
+                           **report.to_dict()}))
+        return 0
+    for line in _report_lines(report.to_dict()):
+        print(line)
+    print(f"wrote {out}: {run.n_blocks} blocks")
+    return 0
+
+
+def _report_lines(r: dict[str, Any]) -> list[str]:
+    """The import report as text, one estimate per line."""
+    lines = [
+        f"recording        {r['fs_rec_hz']:g} Hz; playback heard from {r['onset_s']:.4f} s",
+        f"latency          {r['latency_s'] * 1e3:.4f} ms ({r['latency_samples']:.3f} samples)",
+        f"clock offset     {r['clock_offset_ppm']:+.3f} ppm (residual "
+        f"{r['fit_residual_samples']:.4f} samples over {r['periods_fitted']} periods)",
+        f"direct path      peak {r['direct_peak_db']:.1f} dB over the other lags; "
+        f"{r['direct_to_echo_db']:.1f} dB above everything else",
+        f"static removal   {r['method']}: direct wave suppressed by "
+        f"{_db(r['direct_suppression_db'])}",
+        f"blocks           {r['blocks']} from sonar sample {r['first_sample']} "
+        f"(c = {r['sound_speed_m_s']:.1f} m/s, offset {r['transducer_offset_m']:g} m)",
+    ]
+    cal = r["calibration"]
+    if cal is not None:
+        lines.append(f"calibration      latency {cal['latency_s'] * 1e3:.4f} ms, clock "
+                     f"{cal['clock_offset_ppm']:+.3f} ppm, gain {cal['gain']:.3f}, shift "
+                     f"{cal['shift_samples']:+.4f} samples")
+    lines += [f"warning: {w}" for w in r["warnings"]]
+    return lines
+
+
+def _db(value: float | None) -> str:
+    return ">= noise floor (inf)" if value is None else f"{value:.1f} dB"
 
 
 def add_export_run(sub: argparse._SubParsersAction) -> None:
