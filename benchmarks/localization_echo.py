@@ -873,6 +873,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--search-blocks", type=int, default=None,
                     help="one-block searches per run and map (4; -1: every eligible block)")
     ap.add_argument("--sweep-seeds", type=int, default=None, help="seeds in the sweep (2)")
+    ap.add_argument("--tag", default="", help="write localization_echo_TAG.json/.png (with "
+                    "--only: a subset kept beside the full run's results)")
     ap.add_argument("--resume", action="store_true",
                     help="reuse the runs of out/localization_echo/partial.json written with the "
                     "same settings (after an interrupted run)")
@@ -885,6 +887,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     counts = QUICK_COUNTS if quick else COUNTS
     cases = scene_cases(args.only or (QUICK_SCENES if quick else ()))
     out_dir = CACHE / "quick" if quick else RESULTS
+    stem = f"localization_echo_{args.tag}" if args.tag else "localization_echo"
     t_start = time.perf_counter()
     env_start = environment()
     settings = {
@@ -935,7 +938,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # per run: every variant, then the one-block searches
     rows: list[dict[str, Any]] = []
     by_variant: dict[str, list[dict[str, Any]]] = {v[0]: [] for v in VARIANTS}
-    partial = CACHE / ("partial_quick.json" if quick else "partial.json")
+    partial = CACHE / (f"partial_{args.tag or 'quick'}.json" if quick or args.tag
+                       else "partial.json")
     done: dict[str, dict[str, Any]] = {}
     if args.resume and partial.exists():
         old = json.loads(partial.read_text())
@@ -1048,8 +1052,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sweep": {"runs": [lr.name for lr in subset], "rows": sweep},
         "runtime_s": time.perf_counter() - t_start,
     }
-    write_json(out_dir / "localization_echo.json", result)
-    plot(sweep, out_dir / "localization_echo.png",
+    write_json(out_dir / f"{stem}.json", result)
+    plot(sweep, out_dir / f"{stem}.png",
          f"echo model vs G correlation: cost vs accuracy on {', '.join(lr.name for lr in subset)}"
          f" ({sweep_seeds} global seeds each; SNR {SNR_DB:g} dB, odometry noise)")
     print("\nper run (tracking RMSE, heading RMSE, mean NEES; global successes raw and mod "
@@ -1058,7 +1062,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for v, e in r["variants"].items():
             print(run_line(r["run"], v, e))
     print_summary(summary, search_summary)
-    print(f"wrote {out_dir / 'localization_echo.json'} and .png "
+    print(f"wrote {out_dir / (stem + '.json')} and .png "
           f"({result['runtime_s']:.0f} s)")
     return 0
 
