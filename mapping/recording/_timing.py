@@ -32,6 +32,15 @@ FloatArray = NDArray[np.float64]
 #: A period is "on" when its correlation peak exceeds this many RMS of its other lags (noise
 #: alone gives about 4 over the ~4500 lags of a period).
 ON_SCORE = 10.0
+#: Largest RMS scatter (recording samples) of the per-period direct-path delays about the
+#: clock line before the stream is refused as having no direct path. A direct wave scatters by
+#: ~0.001-0.02 samples (noise, band-passes); the strongest echo of a moving robot, mistaken
+#: for it, by hundreds (measured: 288 samples on shoebox-straight without a direct wave).
+MAX_SCATTER_SAMPLES = 2.0
+#: Largest clock offset (ppm) taken as a sound card's (they are within +-100 ppm); a larger
+#: drift of the strongest arrival is an echo of a moving robot (0.1 m/s towards a wall drifts
+#: like 588 ppm, at 70 deg off the wall's normal like 200).
+MAX_CLOCK_PPM = 200.0
 #: Periods of the stream correlated per FFT batch (memory bound).
 _BATCH = 32
 
@@ -252,7 +261,22 @@ def fit_clock(x: FloatArray, fs_rec_hz: float, config: SonarConfig,
     t = peaks.center_s[lo:hi + 1]
     a, b, kept = fit_line(t, d)
     resid = d - (a + b * t)
+    scatter = float(np.sqrt(np.mean(resid[kept] ** 2)))
+    if scatter > MAX_SCATTER_SAMPLES or kept.sum() < 0.5 * kept.size:
+        raise ValueError(
+            f"no direct path: the strongest arrival of each period is not on one clock line "
+            f"(RMS {scatter:.2f} samples about the best fit, {int(kept.sum())} of "
+            f"{kept.size} periods on it; a direct wave rides with the robot and stays within "
+            f"~0.05 samples) - the microphone must hear the loudspeaker directly (both on "
+            f"the robot, a few cm apart); an echo of a moving robot is not a clock reference"
+        )
     e = b / fs_rec_hz / (1.0 - b / fs_rec_hz)  # slope in s/s = e / (1 + e)
+    if abs(e) * 1e6 > MAX_CLOCK_PPM:
+        raise ValueError(
+            f"no direct path: the strongest arrival drifts as a clock {e * 1e6:+.0f} ppm off, "
+            f"beyond any sound card (+-{MAX_CLOCK_PPM:.0f} ppm) - an echo of a robot moving "
+            f"at {abs(e) * sound_speed_m_s / 2:.3f} m/s, not the direct wave?"
+        )
     # the true intercept (latency + offset / c) is a / fs_rec + m periods, m >= 0
     m0 = math.ceil(-a / period_rec)  # the first whole period with a non-negative arrival
     m = m0 + np.arange(int((first + 2) * peaks.chunk_samples / period_rec) + 2)
@@ -262,7 +286,7 @@ def fit_clock(x: FloatArray, fs_rec_hz: float, config: SonarConfig,
     latency = arrival[i] / (1.0 + e) - transducer_offset_m / sound_speed_m_s
     return ClockFit(
         latency_s=float(latency), clock_offset_ppm=float(e * 1e6),
-        residual_samples=float(np.sqrt(np.mean(resid[kept] ** 2))),
+        residual_samples=scatter,
         onset_s=float(arrival[i]), first_period=lo, last_period=hi,
         n_fitted=int(kept.sum()),
         score_db=float(20.0 * np.log10(np.median(peaks.score[lo:hi + 1]))),
