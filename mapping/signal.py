@@ -30,6 +30,15 @@ FloatArray = NDArray[np.float64]
 TABLE_UPSAMPLE = 32
 
 
+def sound_speed_at(temperature_c: float) -> float:
+    """Speed of sound in dry air at ``temperature_c`` (deg C): ``331.3 sqrt(1 + T / 273.15)``
+    m/s (343.2 m/s at 20 C, 344.4 at 22 C). One home for the simulator of raw recordings
+    (the propagation speed) and the importer (the processing's)."""
+    if not (math.isfinite(temperature_c) and -60.0 <= temperature_c <= 80.0):
+        raise ValueError(f"temperature_c must be in [-60, 80] deg C, got {temperature_c!r}")
+    return 331.3 * math.sqrt(1.0 + temperature_c / 273.15)
+
+
 @dataclass(frozen=True)
 class SonarConfig:
     """Parameters of the omnidirectional active sonar (defaults: paper Table 1, M = 10).

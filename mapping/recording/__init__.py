@@ -20,7 +20,8 @@ The clock and geometry conventions are shared with the raw simulator
 ``n / (fs_rec (1 + clock_offset_ppm 1e-6)) - latency_s``; the loudspeaker starts playing the
 transmitted sequence at sonar time 0; pose-log times are on the recording clock. Private
 modules: ``_poses`` (pose logs and block odometry), ``_timing`` (direct-path timing),
-``_static`` (static removal), ``_raw`` (the raw import).
+``_static`` (static removal), ``_raw`` (the raw import), ``_stream`` (the same while
+recording: :class:`RawStreamer` hands out each block as soon as its samples are in).
 """
 
 from __future__ import annotations
@@ -45,8 +46,8 @@ from mapping.recording._raw import (
     StaticRemoval,
     find_clipping,
     import_raw,
-    sound_speed_from_temperature,
 )
+from mapping.recording._stream import RawStreamer, StreamBlock
 from mapping.recording._timing import ClockFit, fit_clock
 
 __all__ = [
@@ -59,7 +60,9 @@ __all__ = [
     "PoseLog",
     "RawImportOptions",
     "RawImportReport",
+    "RawStreamer",
     "StaticRemoval",
+    "StreamBlock",
     "block_odometry",
     "find_clipping",
     "fit_clock",
@@ -68,6 +71,5 @@ __all__ = [
     "join_blocks",
     "pose_log_from_blocks",
     "poses_at",
-    "sound_speed_from_temperature",
     "split_blocks",
 ]

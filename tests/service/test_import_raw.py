@@ -49,7 +49,7 @@ def test_json_report_and_run_file(files: dict[str, Path],
     report = json.loads(capsys.readouterr().out)
     assert abs(report["latency_s"] - SCENE.latency_s) * SCENE.fs_rec_hz < 0.05
     assert abs(report["clock_offset_ppm"] - SCENE.clock_offset_ppm) < 2.0
-    assert report["method"] == "run" and report["direct_suppression_db"] >= 40.0
+    assert report["method"] == "gated" and report["direct_suppression_db"] >= 40.0  # default
     run = read_run(out)
     assert run.n_blocks == report["blocks"] == report["blocks_written"] == 3
     assert run.meta["raw_import"]["latency_s"] == report["latency_s"]

@@ -47,19 +47,19 @@ neglected). Then :func:`mapping.resample.resample_at` reads the stream at the ``
 (``snr_db`` against the wall-echo power per sonar sample, i.e. the clean simulator's SNR:
 direct wave and floor/ceiling excluded; its variance scaled by ``fs_rec / fs`` so the noise
 density in the sonar band is the clean run's), and the sum clipped to ``full_scale``.
-Temperature changes the propagation speed (:func:`sound_speed_at`) while the processing keeps
-the ``SonarConfig``'s.
+Temperature changes the propagation speed (:func:`mapping.signal.sound_speed_at`) while the
+processing keeps the ``SonarConfig``'s.
 
 Notes
 -----
-Private modules: ``_config`` (:class:`RawConfig`, :func:`sound_speed_at`), ``_paths`` (floor
-and ceiling images, the static paths, the 3-D lift of a planned stretch, the band-passes),
-``_stream`` (the chunked signal chain, the pose log, the records).
+Private modules: ``_config`` (:class:`RawConfig`), ``_paths`` (floor and ceiling images, the
+static paths, the 3-D lift of a planned stretch, the band-passes), ``_stream`` (the chunked
+signal chain, the pose log, the records).
 """
 
 from __future__ import annotations
 
-from mapping.simulate.raw._config import FS_RANGE_HZ, RawConfig, sound_speed_at
+from mapping.simulate.raw._config import FS_RANGE_HZ, RawConfig
 from mapping.simulate.raw._paths import band_sos, static_paths, vertical_images, vertical_plan
 from mapping.simulate.raw._stream import (
     RawChunk,
@@ -88,7 +88,6 @@ __all__ = [
     "recording_times",
     "resample_cutoff_hz",
     "simulate_raw",
-    "sound_speed_at",
     "static_paths",
     "vertical_images",
     "vertical_plan",

@@ -15,12 +15,6 @@ from typing import Any
 FS_RANGE_HZ = (40_000.0, 192_000.0)
 
 
-def sound_speed_at(temperature_c: float) -> float:
-    """Speed of sound in dry air at ``temperature_c`` (deg C): ``331.3 sqrt(1 + T / 273.15)``
-    m/s (344.4 m/s at 22 C, 343.2 m/s at 20 C)."""
-    return 331.3 * math.sqrt(1.0 + temperature_c / 273.15)
-
-
 @dataclass(frozen=True)
 class RawConfig:
     """What a real sound card, room and pair of transducers add to the clean echoes.
@@ -55,8 +49,9 @@ class RawConfig:
     band_order : int
         Butterworth order of each band-pass edge, 1..8.
     temperature_c : float or None
-        Air temperature in deg C, in [-40, 60]: sound travels at :func:`sound_speed_at`
-        instead of the ``SonarConfig``'s ``sound_speed_m_s``; None: the config's speed.
+        Air temperature in deg C, in [-40, 60]: sound travels at
+        :func:`mapping.signal.sound_speed_at` instead of the ``SonarConfig``'s
+        ``sound_speed_m_s``; None: the config's speed.
     snr_db : float or None
         White noise at this SNR against the wall-echo power (direct wave and floor/ceiling
         excluded), per sample at the sonar rate (so its density in the sonar band matches a

@@ -23,7 +23,7 @@ from scipy.signal import sosfilt, sosfilt_zi
 
 from mapping.recording import PoseLog
 from mapping.resample import resample_at
-from mapping.signal import SonarConfig, transmitted_at
+from mapping.signal import SonarConfig, sound_speed_at, transmitted_at
 from mapping.simulate._base import SceneLike, TrajectoryLike
 from mapping.simulate.ism import (
     IsmConfig,
@@ -32,7 +32,7 @@ from mapping.simulate.ism import (
     prepare_scene,
     render_stretch,
 )
-from mapping.simulate.raw._config import RawConfig, sound_speed_at
+from mapping.simulate.raw._config import RawConfig
 from mapping.simulate.raw._paths import band_sos, static_paths, vertical_images, vertical_plan
 
 FloatArray = NDArray[np.float64]

@@ -16,10 +16,9 @@ from mapping.recording import (
     find_clipping,
     fit_clock,
     import_raw,
-    sound_speed_from_temperature,
 )
 from mapping.resample import resample_at, transition_width_hz
-from mapping.signal import SonarConfig, transmitted_at, tx_period
+from mapping.signal import SonarConfig, sound_speed_at, transmitted_at, tx_period
 from tests.mapping.recording.synth import Echo, RawScene, field_at, raw_stream, wall_echo
 
 CFG = SonarConfig()
@@ -79,7 +78,8 @@ def test_run_removal_leaves_the_moving_echo_on_the_sonar_clock(fs: float) -> Non
     simulation of the same samples is the block's ground truth)."""
     scene = RawScene(fs_rec_hz=fs, latency_s=0.151, clock_offset_ppm=-41.0, duration_s=7.0,
                      echoes=(MOVING, PARALLEL, BODY))
-    run, report = import_raw(raw_stream(scene, CFG), fs, LOG, CFG, RawImportOptions())
+    run, report = import_raw(raw_stream(scene, CFG), fs, LOG, CFG,
+                             RawImportOptions(static_removal="run"))
     y = run.samples.reshape(-1).astype(np.float64)
     assert report.first_sample % CFG.period_samples == 0 and report.first_sample > 0
     moving = _lowpassed(lambda tau: field_at(RawScene(echoes=(MOVING,), direct=False), tau, CFG),
@@ -223,9 +223,9 @@ def test_options_validation(kwargs: dict[str, object], fragment: str) -> None:
 
 
 def test_temperature_sets_the_run_speed_of_sound() -> None:
-    assert sound_speed_from_temperature(20.0) == pytest.approx(343.2, abs=0.1)
-    assert sound_speed_from_temperature(0.0) == pytest.approx(331.3)
-    scene = RawScene(duration_s=3.0, sound_speed_m_s=sound_speed_from_temperature(30.0))
+    assert sound_speed_at(20.0) == pytest.approx(343.2, abs=0.1)
+    assert sound_speed_at(0.0) == pytest.approx(331.3)
+    scene = RawScene(duration_s=3.0, sound_speed_m_s=sound_speed_at(30.0))
     run, report = import_raw(raw_stream(scene, CFG), scene.fs_rec_hz, LOG, CFG,
                              RawImportOptions(temperature_c=30.0))
     assert run.config.sound_speed_m_s == report.sound_speed_m_s == scene.sound_speed_m_s

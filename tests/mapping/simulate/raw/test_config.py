@@ -6,7 +6,8 @@ from typing import Any
 
 import pytest
 
-from mapping.simulate.raw import RawConfig, sound_speed_at
+from mapping.signal import sound_speed_at
+from mapping.simulate.raw import RawConfig
 
 
 def test_sound_speed_of_air() -> None:

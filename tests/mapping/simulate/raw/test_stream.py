@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.signal import sosfreqz
 
-from mapping.signal import playback_signal, transmitted_exact, tx_samples
+from mapping.signal import playback_signal, sound_speed_at, transmitted_exact, tx_samples
 from mapping.simulate.ism import IsmConfig, simulate_stretch
 from mapping.simulate.raw import (
     RawConfig,
@@ -24,7 +24,6 @@ from mapping.simulate.raw import (
     iter_raw_chunks,
     recording_times,
     simulate_raw,
-    sound_speed_at,
 )
 from tests.mapping.simulate.raw.helpers import (
     CFG,
