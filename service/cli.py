@@ -6,9 +6,9 @@ registers its parser and sets ``func`` to a ``_cmd_<name>(args) -> int`` handler
 
 The subcommands live by topic in :mod:`service.commands`: ``runs`` (signal, scenes,
 import-run, export-run, and the shared ``resolve_scene`` / ``resolve_path``), ``simulate``,
-``maps`` (heatmap, build-map, evaluate-map), ``localize`` (localize, calibrate, posterior) and
-``serve`` (serve, demo-api, demo). This module holds the ``_COMMANDS`` registry (in
-``--help`` order), the parser and the entry point.
+``maps`` (heatmap, build-map, evaluate-map), ``localize`` (localize, calibrate, posterior),
+``serve`` (serve, demo-api, demo) and ``stream`` (the robot's side of the service). This
+module holds the ``_COMMANDS`` registry (in ``--help`` order), the parser and the entry point.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from service.commands.runs import (
 )
 from service.commands.serve import add_demo, add_demo_api, add_serve
 from service.commands.simulate import add_simulate
+from service.commands.stream import add_stream
 
 __all__ = ["DefaultsHelpFormatter", "build_parser", "main"]
 
@@ -46,6 +47,7 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_evaluate_map,
     add_localize,
     add_calibrate,
+    add_stream,
 ]
 
 

@@ -1,7 +1,8 @@
 """``omnisonar`` subcommands for runs and their inputs: signal, scenes, import-run, export-run.
 
 ``import-run --raw`` imports what a sound card recorded (:func:`mapping.recording.import_raw`)
-and prints its report as text or ``--json``.
+and prints its report as text or ``--json``; its options are shared with ``stream``
+(:func:`add_raw_import_options`, :func:`raw_import_options`).
 
 Also the helpers the other subcommand modules share: :func:`_load_config` (SonarConfig
 from a JSON file), :func:`resolve_scene` and :func:`resolve_path` (``builtin:NAME`` or a
@@ -15,12 +16,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mapping.files import atomic_write
 from mapping.signal import SonarConfig, tx_block
 
 if TYPE_CHECKING:
     from mapping.path import Trajectory
+    from mapping.recording import RawImportOptions
     from mapping.scene import Scene
 
 
@@ -126,9 +129,47 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_import_run(sub: argparse._SubParsersAction) -> None:
+def add_raw_import_options(raw: argparse._ArgumentGroup) -> None:
+    """The raw-import options ``import-run --raw`` and ``stream`` share."""
     from mapping.recording import DEFAULT_TRANSDUCER_OFFSET_M, STATIC_REMOVAL_METHODS
 
+    raw.add_argument("--calibration", metavar="CAL.wav",
+                     help="a raw recording made standing still (or in the open) for "
+                     "--static calibration")
+    raw.add_argument("--static", choices=STATIC_REMOVAL_METHODS,
+                     help="static removal: run = everything static (also walls parallel to a "
+                     "straight path), calibration = what CAL.wav heard, gated = direct path, "
+                     "body and (with heights) floor/ceiling only (default: calibration with "
+                     "--calibration, else gated; give the heights)")
+    raw.add_argument("--offset", type=float, default=DEFAULT_TRANSDUCER_OFFSET_M, metavar="M",
+                     help="loudspeaker-microphone distance in m")
+    raw.add_argument("--sonar-height", type=float, metavar="M",
+                     help="sonar height above the floor in m (gated: removes floor echoes)")
+    raw.add_argument("--ceiling-height", type=float, metavar="M",
+                     help="ceiling height in m (gated, with --sonar-height)")
+    raw.add_argument("--temperature", type=float, metavar="C",
+                     help="air temperature in deg C: sets the speed of sound (default: the "
+                     "config's)")
+
+
+def raw_import_options(args: argparse.Namespace
+                       ) -> tuple[RawImportOptions, tuple[NDArray[np.float64], float] | None]:
+    """Options and the calibration recording (samples, rate) of the shared raw options."""
+    from mapping.files import read_wav_raw
+    from mapping.recording import RawImportOptions, StaticRemoval
+
+    method: StaticRemoval = args.static or ("calibration" if args.calibration else "gated")
+    if method == "calibration" and not args.calibration:
+        raise ValueError("--static calibration needs --calibration CAL.wav")
+    options = RawImportOptions(
+        transducer_offset_m=args.offset, static_removal=method,
+        sonar_height_m=args.sonar_height, ceiling_height_m=args.ceiling_height,
+        temperature_c=args.temperature)
+    cal = read_wav_raw(args.calibration) if args.calibration else None
+    return options, None if cal is None else (cal.samples, cal.fs_hz)
+
+
+def add_import_run(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import-run", help="real recording (WAV + pose CSV) -> run file")
     p.add_argument("--wav", required=True, help="mono WAV: with --raw, what the sound card "
                    "recorded (any rate >= the sonar rate); without, a stream at the sonar rate "
@@ -143,23 +184,7 @@ def add_import_run(sub: argparse._SubParsersAction) -> None:
     raw.add_argument("--raw", action="store_true",
                      help="the WAV is a raw recording: estimate latency and clock offset from "
                      "the direct path, resample, remove the direct wave and static echoes")
-    raw.add_argument("--calibration", metavar="CAL.wav",
-                     help="a raw recording made standing still (or in the open) for "
-                     "--static calibration")
-    raw.add_argument("--static", choices=STATIC_REMOVAL_METHODS,
-                     help="static removal: run = everything static (also walls parallel to a "
-                     "straight path), calibration = what CAL.wav heard, gated = direct path, "
-                     "body and (with heights) floor/ceiling only (default: calibration with "
-                     "--calibration, else run)")
-    raw.add_argument("--offset", type=float, default=DEFAULT_TRANSDUCER_OFFSET_M, metavar="M",
-                     help="loudspeaker-microphone distance in m")
-    raw.add_argument("--sonar-height", type=float, metavar="M",
-                     help="sonar height above the floor in m (gated: removes floor echoes)")
-    raw.add_argument("--ceiling-height", type=float, metavar="M",
-                     help="ceiling height in m (gated, with --sonar-height)")
-    raw.add_argument("--temperature", type=float, metavar="C",
-                     help="air temperature in deg C: sets the speed of sound (default: the "
-                     "config's)")
+    add_raw_import_options(raw)
     raw.add_argument("--json", action="store_true",
                      help="print the import report as one JSON object")
     p.set_defaults(func=_cmd_import_run)
@@ -207,24 +232,16 @@ def _cmd_import_raw(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from mapping.files import read_pose_csv, read_wav_raw, write_run
-    from mapping.recording import RawImportOptions, StaticRemoval, import_raw
+    from mapping.recording import import_raw
     from service.jsonout import strict_json
 
     config = _load_config(args.config)
-    method: StaticRemoval = args.static or ("calibration" if args.calibration else "run")
-    options = RawImportOptions(
-        transducer_offset_m=args.offset, static_removal=method,
-        sonar_height_m=args.sonar_height, ceiling_height_m=args.ceiling_height,
-        temperature_c=args.temperature)
-    if method == "calibration" and not args.calibration:
-        raise ValueError("--static calibration needs --calibration CAL.wav")
+    options, calibration = raw_import_options(args)
     wav = read_wav_raw(args.wav)
     log = read_pose_csv(args.poses)
-    cal = read_wav_raw(args.calibration) if args.calibration else None
     try:
         run, report = import_raw(wav.samples, wav.fs_hz, log, config, options,
-                                 calibration=None if cal is None else (cal.samples, cal.fs_hz),
-                                 full_scale=wav.full_scale)
+                                 calibration=calibration, full_scale=wav.full_scale)
     except ValueError as exc:
         raise ValueError(f"{args.wav}: {exc}") from None
     if args.blocks is not None:

@@ -1,0 +1,119 @@
+"""``omnisonar stream``: a simulated raw recording streamed to the service (TestClient), from a
+WAV and from stdin PCM; refusals."""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Iterator
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from mapping.files import write_map, write_pose_csv, write_wav
+from mapping.path import builtin_path
+from mapping.scene import builtin_scene
+from mapping.signal import SonarConfig
+from mapping.simulate.ism import IsmConfig
+from mapping.simulate.raw import RawConfig, RawRecording, simulate_raw
+from mapping.wallmap import wallmap_from_walls
+from service.app import create_app
+from service.cli import build_parser
+from service.commands.stream import _cmd_stream
+from service.settings import Settings, get_settings
+
+RAW = RawConfig(fs_hz=48_000.0, latency_s=0.037, clock_offset_ppm=60.0,
+                transducer_offset_m=0.05, sonar_height_m=0.3, ceiling_height_m=2.6,
+                temperature_c=22.0, snr_db=10.0)
+
+
+@cache
+def recording() -> RawRecording:
+    return simulate_raw(builtin_scene("shoebox"), builtin_path("shoebox-straight"),
+                        SonarConfig(), 8.5, IsmConfig(max_order=2, max_path_m=12.0), RAW,
+                        np.random.default_rng(2))
+
+
+@pytest.fixture()
+def files(tmp_path: Path) -> tuple[Path, Path]:
+    rec = recording()
+    wav, poses = tmp_path / "rec.wav", tmp_path / "poses.csv"
+    write_wav(wav, rec.samples / np.abs(rec.samples).max() * 0.5, rec.fs_hz)
+    write_pose_csv(poses, rec.poses)
+    return wav, poses
+
+
+@pytest.fixture()
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    scene = builtin_scene("shoebox")
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    write_map(maps / "room.npz", wallmap_from_walls(scene.segments().reshape(-1, 4),
+                                                    np.abs(scene.reflection_coefficients())))
+    settings = Settings(maps_dir=maps, sessions_dir=tmp_path / "sessions",
+                        runs_dir=tmp_path / "runs", default_map=False)
+    app = create_app()
+    app.dependency_overrides[get_settings] = lambda: settings
+    with TestClient(app) as c:
+        yield c
+
+
+COMMON = ["--map", "room", "--particles", "500", "--pace", "0", "--json", "--temperature",
+          "22", "--static", "gated", "--sonar-height", "0.3", "--ceiling-height", "2.6"]
+
+
+def _lines(out: str) -> list[dict[str, object]]:
+    return [json.loads(line) for line in out.splitlines() if line.strip()]
+
+
+def test_stream_a_wav_tracks_the_logged_poses(files: tuple[Path, Path], client: TestClient,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    wav, poses = files
+    args = build_parser().parse_args(["stream", "--wav", str(wav), "--poses", str(poses),
+                                      *COMMON])
+    assert _cmd_stream(args, http=client) == 0
+    lines = _lines(capsys.readouterr().out)
+    assert [ln["seq"] for ln in lines] == list(range(len(lines))) and len(lines) >= 6
+    errors = [float(ln["log_error_m"]) for ln in lines]  # type: ignore[arg-type]
+    assert max(errors) < 0.05, errors
+    assert len(client.app.state.sessions) == 0  # type: ignore[attr-defined]  # closed at the end
+
+
+def test_stream_from_stdin_pcm_gives_the_same_blocks(files: tuple[Path, Path],
+                                                     client: TestClient,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    wav, poses = files
+    args = build_parser().parse_args(["stream", "--wav", str(wav), "--poses", str(poses),
+                                      *COMMON])
+    _cmd_stream(args, http=client)
+    from_wav = _lines(capsys.readouterr().out)
+    rec = recording()
+    pcm = np.round(rec.samples / np.abs(rec.samples).max() * 0.5 * 32767).astype("<i2")
+    args = build_parser().parse_args(["stream", "--stdin", "--rate", "48000", "--poses",
+                                      str(poses), *COMMON])
+    _cmd_stream(args, http=client, stdin=io.BytesIO(pcm.tobytes()))
+    from_stdin = _lines(capsys.readouterr().out)
+    assert len(from_stdin) == len(from_wav)
+    for a, b in zip(from_wav, from_stdin, strict=True):
+        assert a["seq"] == b["seq"] and abs(float(a["t_s"]) - float(b["t_s"])) < 1e-6  # type: ignore[arg-type]
+        assert float(b["log_error_m"]) < 0.05  # type: ignore[arg-type]
+
+
+def test_stream_refusals(files: tuple[Path, Path], client: TestClient) -> None:
+    wav, poses = files
+    parse = build_parser().parse_args
+    with pytest.raises(ValueError, match="--rate"):
+        _cmd_stream(parse(["stream", "--stdin", "--poses", str(poses)]), http=client)
+    with pytest.raises(ValueError, match="--pace"):
+        _cmd_stream(parse(["stream", "--wav", str(wav), "--poses", str(poses), "--pace", "-1"]),
+                    http=client)
+    with pytest.raises(ValueError, match="calibration"):
+        _cmd_stream(parse(["stream", "--wav", str(wav), "--poses", str(poses), "--static",
+                           "calibration"]), http=client)
+    silence = io.BytesIO(np.zeros(48_000 * 4, dtype="<i2").tobytes())
+    with pytest.raises(ValueError, match="direct path"):
+        _cmd_stream(parse(["stream", "--stdin", "--rate", "48000", "--poses", str(poses)]),
+                    http=client, stdin=silence)
