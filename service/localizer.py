@@ -124,13 +124,18 @@ class LocalizationFactory:
 
     def _session_tables(self, map_id: str, spec: FilterSpec
                         ) -> tuple[SensorTables, SonarConfig, SensorTables]:
-        """The map's tables, with the session's own sharpness if it asked for one (beta does
-        not enter the tables, so this is a cheap copy of the config only)."""
+        """The map's tables, with the session's own sharpness and speed of sound if it asked
+        for them (neither enters the tables' arrays, so this is a cheap copy of the configs:
+        the heat map's range axis and the echo model's delays and Doppler read the speed of
+        sound from ``config`` and ``tables.sonar``)."""
         base, config = self.tables(map_id, spec.map_sha256)
         tables = base
         if spec.beta is not None:
             sensor = dataclasses.replace(base.config, beta=float(spec.beta))
             tables = dataclasses.replace(base, config=sensor)
+        if spec.sound_speed_m_s is not None:
+            config = dataclasses.replace(config, sound_speed_m_s=float(spec.sound_speed_m_s))
+            tables = dataclasses.replace(tables, sonar=config)
         return tables, config, base
 
     def create(self, map_id: str, spec: FilterSpec) -> Localizer:

@@ -161,6 +161,11 @@ class SessionCreate(_Strict):
     beta: float | None = Field(
         None, gt=0, le=100_000, description="sensor sharpness for this session (default: the "
         "server's, 200); `omnisonar calibrate` picks an honest one per map")
+    sound_speed_m_s: float | None = Field(
+        None, ge=300, le=380, description="speed of sound in the robot's air for this session "
+        "(331.3 sqrt(1 + T/273.15) m/s at T deg C; `omnisonar stream --temperature` sends it); "
+        "default: the map's sonar config. Ranges and Doppler angles scale with it: 1.7 % for "
+        "10 K")
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
 
@@ -248,6 +253,8 @@ class SessionInfo(BaseModel):
     seed: int
     beta: float | None = Field(None, description="sensor sharpness asked for at creation "
                                "(null: the server's default)")
+    sound_speed_m_s: float | None = Field(None, description="speed of sound asked for at "
+                                          "creation (null: the map's)")
     created_at: float
     last_active_at: float
     expires_in_s: float

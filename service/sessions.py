@@ -59,6 +59,7 @@ class FilterSpec:
     initial_covariance: tuple[tuple[float, ...], ...] | None = None  # None: the core's default
     beta: float | None = None       # sensor sharpness; None: the server's default
     map_sha256: str | None = None   # content hash of the map the session runs on (issue 17)
+    sound_speed_m_s: float | None = None  # the session's air; None: the map's (issue 16)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -74,6 +75,8 @@ class FilterSpec:
             initial_covariance=None if cov is None else tuple(tuple(map(float, r)) for r in cov),
             beta=None if d.get("beta") is None else float(d["beta"]),
             map_sha256=None if d.get("map_sha256") is None else str(d["map_sha256"]),
+            sound_speed_m_s=(None if d.get("sound_speed_m_s") is None
+                             else float(d["sound_speed_m_s"])),
         )
 
 

@@ -131,7 +131,9 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
                 if sid is None:
                     x, y, yaw = (float(v) for v in odo.pose[0])
                     start = None if args.global_ else (x, y, yaw)
-                    sid = _open(client, args, start)
+                    sid = _open(client, args, start, streamer.config.sound_speed_m_s
+                                if options.temperature_c is not None
+                                or options.sound_speed_m_s is not None else None)
                 r = client.post(
                     f"/sessions/{sid}/blocks",
                     params={"seq": blk.index, "fs_hz": config.fs_hz,
@@ -151,11 +153,14 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
     return 0
 
 
-def _open(client: Any, args: argparse.Namespace,
-          start: tuple[float, float, float] | None) -> str:
+def _open(client: Any, args: argparse.Namespace, start: tuple[float, float, float] | None,
+          sound_speed_m_s: float | None) -> str:
+    """The session; with ``--temperature`` the service processes the blocks at the air's
+    speed of sound too (not only the import's timing)."""
     from service.client_example import open_session
 
-    return open_session(client, args.map, args.particles, 0, start)
+    return open_session(client, args.map, args.particles, 0, start,
+                        sound_speed_m_s=sound_speed_m_s)
 
 
 def _print(args: argparse.Namespace, seq: int, t_s: float, est: dict[str, Any],

@@ -117,3 +117,54 @@ def test_stream_refusals(files: tuple[Path, Path], client: TestClient) -> None:
     with pytest.raises(ValueError, match="direct path"):
         _cmd_stream(parse(["stream", "--stdin", "--rate", "48000", "--poses", str(poses)]),
                     http=client, stdin=silence)
+
+
+def test_session_speed_of_sound_reaches_the_filter(client: TestClient) -> None:
+    """``sound_speed_m_s`` at creation: shown back, used by the session's heat map and echo
+    model (the map's shared tables keep the map's), kept in the spec a checkpoint restores."""
+    from service.sessions import FilterSpec
+
+    r = client.post("/sessions", json={"map_id": "room", "particles": 100,
+                                       "sound_speed_m_s": 344.4,
+                                       "initial_pose": {"x": 1.0, "y": 1.0, "yaw": 0.4}})
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    assert client.get(f"/sessions/{sid}").json()["sound_speed_m_s"] == 344.4
+    tracker = client.app.state.sessions.get(sid).tracker  # type: ignore[attr-defined]
+    assert tracker.config.sound_speed_m_s == 344.4
+    assert tracker.tables.sonar.sound_speed_m_s == 344.4
+    assert tracker.filter.tables.sonar.sound_speed_m_s == 344.4
+    assert tracker.base_tables.sonar.sound_speed_m_s == SonarConfig().sound_speed_m_s
+    spec = client.app.state.sessions.get(sid).spec  # type: ignore[attr-defined]
+    assert FilterSpec.from_dict(spec.to_dict()).sound_speed_m_s == 344.4
+    bad = client.post("/sessions", json={"map_id": "room", "sound_speed_m_s": 250.0})
+    assert bad.status_code == 422 and "sound_speed_m_s" in bad.text
+
+
+def test_stream_temperature_reaches_the_service(files: tuple[Path, Path], client: TestClient,
+                                                tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Air at 40 C (355 m/s, 4.5 % above the map's 340): ``--temperature 40`` makes the
+    service process the blocks at that speed too; without it (the session at the map's speed,
+    only the import's timing corrected) the track is worse."""
+    import dataclasses
+
+    import service.commands.stream as stream_module
+
+    hot = dataclasses.replace(RAW, temperature_c=40.0)
+    rec = simulate_raw(builtin_scene("shoebox"), builtin_path("shoebox-straight"),
+                       SonarConfig(), 8.5, IsmConfig(max_order=2, max_path_m=12.0), hot,
+                       np.random.default_rng(2))
+    wav = tmp_path / "hot.wav"
+    write_wav(wav, rec.samples / np.abs(rec.samples).max() * 0.5, rec.fs_hz)
+    common = [a if a != "22" else "40" for a in COMMON]
+    args = build_parser().parse_args(["stream", "--wav", str(wav), "--poses", str(files[1]),
+                                      *common])
+    assert _cmd_stream(args, http=client) == 0
+    told = [float(ln["log_error_m"]) for ln in _lines(capsys.readouterr().out)]  # type: ignore[arg-type]
+    untold = stream_module._open
+    monkeypatch.setattr(stream_module, "_open",
+                        lambda c, a, s, speed: untold(c, a, s, None))
+    assert _cmd_stream(args, http=client) == 0
+    not_told = [float(ln["log_error_m"]) for ln in _lines(capsys.readouterr().out)]  # type: ignore[arg-type]
+    assert max(told) < 0.05 and np.mean(told) < np.mean(not_told), (told, not_told)
