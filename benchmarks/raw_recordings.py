@@ -7,7 +7,8 @@ image-source engine as ``benchmarks.localization_echo`` (order <= 3, paths <= 12
 * **clean**: the run file the heat map wants (sonar rate, period-aligned, no direct wave);
 * **raw**: :func:`mapping.simulate.raw.simulate_raw` with every effect on (48 kHz, 37 ms latency,
   +60 ppm clock, 5 cm transducer offset, sonar 0.3 m above the floor under a 2.6 m ceiling with
-  its floor and ceiling bounces (zero Doppler, constant range), speaker 1.5-18 kHz and
+  its floor and ceiling bounces (zero Doppler, constant range), a body echo (0.3 m path,
+  reflection 0.3), speaker 1.5-18 kHz and
   microphone 50 Hz-19 kHz band-passes, 22 C air), then imported with
   :func:`mapping.recording.import_raw` told the temperature (a thermometer), once per static
   removal method: ``run``, ``gated`` (given the sonar and ceiling heights) and ``calibration``
@@ -99,7 +100,7 @@ def raw_config(vertical_order: int = 1) -> RawConfig:
                      transducer_offset_m=0.05, sonar_height_m=SONAR_HEIGHT_M,
                      ceiling_height_m=CEILING_HEIGHT_M, vertical_order=vertical_order,
                      speaker_band_hz=(1_500.0, 18_000.0), mic_band_hz=(50.0, 19_000.0),
-                     temperature_c=TEMPERATURE_C, snr_db=SNR_DB)
+                     temperature_c=TEMPERATURE_C, snr_db=SNR_DB, body_echoes=((0.3, 0.3),))
 
 
 def paths_of(scene: str) -> tuple[str, str]:

@@ -57,7 +57,8 @@ def add_simulate(sub: argparse._SubParsersAction) -> None:
 
 #: ``--raw-all``: realistic values for every effect (each option given explicitly wins).
 RAW_ALL = dict(rate=48_000.0, latency=0.037, clock_ppm=60.0, offset=0.05, sonar_height=0.3,
-               ceiling_height=2.6, vertical_order=2, band=True, temperature=22.0)
+               ceiling_height=2.6, vertical_order=2, band=True, temperature=22.0,
+               body_echo=[[0.3, 0.3]])
 
 
 def _add_raw_options(p: argparse.ArgumentParser) -> None:
@@ -67,7 +68,8 @@ def _add_raw_options(p: argparse.ArgumentParser) -> None:
     raw.add_argument("--raw-all", action="store_true",
                      help="every effect on at realistic values: 48 kHz, 37 ms latency, +60 ppm, "
                           "5 cm offset, sonar 0.3 m, ceiling 2.6 m with wall combinations, "
-                          "speaker 1.5-18 kHz and mic 50 Hz-19 kHz, 22 C")
+                          "speaker 1.5-18 kHz and mic 50 Hz-19 kHz, 22 C, a body echo "
+                          "(0.3 m path, 0.3)")
     raw.add_argument("--rate", type=float, help="sound-card rate in Hz (default 48000)")
     raw.add_argument("--latency", type=float, help="recording start to playback start, s")
     raw.add_argument("--clock-ppm", type=float, help="recording clock rate offset, ppm")
@@ -82,6 +84,10 @@ def _add_raw_options(p: argparse.ArgumentParser) -> None:
     raw.add_argument("--temperature", type=float,
                      help="air temperature in C (sound speed 331.3 sqrt(1 + T/273.15) m/s)")
     raw.add_argument("--full-scale", type=float, help="clip the recording at +-this")
+    raw.add_argument("--body-echo", type=float, nargs=2, action="append",
+                     metavar=("PATH_M", "REFLECTION"),
+                     help="an echo off the robot's body: loudspeaker-body-microphone path and "
+                     "reflection (repeat for more)")
 
 
 def raw_config(args: argparse.Namespace) -> RawConfig:
@@ -103,6 +109,7 @@ def raw_config(args: argparse.Namespace) -> RawConfig:
         temperature_c=opt.get("temperature"),
         snr_db=args.snr_db,
         full_scale=args.full_scale,
+        body_echoes=tuple((float(p), float(r)) for p, r in opt.get("body_echo") or ()),
     )
 
 

@@ -30,7 +30,8 @@ def test_raw_all_writes_the_simulators_recording(tmp_path: Path,
     raw = RawConfig(fs_hz=48_000.0, latency_s=0.037, clock_offset_ppm=60.0,
                     transducer_offset_m=0.05, sonar_height_m=0.3, ceiling_height_m=2.6,
                     vertical_order=2, speaker_band_hz=(1_500.0, 18_000.0),
-                    mic_band_hz=(50.0, 19_000.0), temperature_c=22.0, snr_db=10.0)
+                    mic_band_hz=(50.0, 19_000.0), temperature_c=22.0, snr_db=10.0,
+                    body_echoes=((0.3, 0.3),))
     config = SonarConfig()
     duration = (config.block_s + 0.037) * (1 + 60e-6)
     want = simulate_raw(builtin_scene("paper"), builtin_path("paper-b"), config, duration,

@@ -60,6 +60,11 @@ class RawConfig:
         Clip the recorded samples to +-full_scale (> 0), as a sound card does; None: no clip.
     pose_step_s : float
         Spacing of the pose-log rows on the recording clock, in [0.001, 1] s.
+    body_echoes : tuple of (float, float)
+        Echoes off the robot's own body (a bumper, a mast): each ``(path_m, reflection)``,
+        the loudspeaker-body-microphone path in (0, 2] m and a reflection in [0, 1], heard
+        with 3-D spreading ``reflection / path``; they ride with the robot (constant delay,
+        no Doppler) like the direct wave.
     """
 
     fs_hz: float = 48_000.0
@@ -79,6 +84,7 @@ class RawConfig:
     snr_db: float | None = None
     full_scale: float | None = None
     pose_step_s: float = 0.05
+    body_echoes: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         _check_range("fs_hz", self.fs_hz, *FS_RANGE_HZ)
@@ -113,6 +119,11 @@ class RawConfig:
         if self.full_scale is not None:
             _check_range("full_scale", self.full_scale, 1e-12, 1e12)
         _check_range("pose_step_s", self.pose_step_s, 1e-3, 1.0)
+        for i, echo in enumerate(self.body_echoes):
+            if not (len(echo) == 2 and all(_is_real(v) for v in echo)
+                    and 0 < echo[0] <= 2.0 and 0 <= echo[1] <= 1.0):
+                raise ValueError(f"RawConfig.body_echoes[{i}] must be (path_m in (0, 2], "
+                                 f"reflection in [0, 1]), got {echo!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dictionary of the fields (for metadata)."""

@@ -54,8 +54,9 @@ def vertical_images(raw: RawConfig) -> tuple[FloatArray, FloatArray]:
 def static_paths(raw: RawConfig, c: float) -> tuple[FloatArray, FloatArray]:
     """Delays (s) and amplitudes of the paths that ride with the robot (no Doppler).
 
-    The direct wave (``transducer_offset_m`` = d: delay d / c, amplitude 1 / d) and the pure
-    vertical bounces (delay ``sqrt(dz^2 + d^2) / c``, amplitude ``r / (c delay)``).
+    The direct wave (``transducer_offset_m`` = d: delay d / c, amplitude 1 / d), the pure
+    vertical bounces (delay ``sqrt(dz^2 + d^2) / c``, amplitude ``r / (c delay)``) and the
+    robot's body echoes (``body_echoes``: delay ``path / c``, amplitude ``r / path``).
     """
     d = raw.transducer_offset_m
     delays, gains = [], []
@@ -67,6 +68,9 @@ def static_paths(raw: RawConfig, c: float) -> tuple[FloatArray, FloatArray]:
         length = math.hypot(dz, d or 0.0)
         delays.append(length / c)
         gains.append(r / length)
+    for path, r in raw.body_echoes:
+        delays.append(path / c)
+        gains.append(r / path)
     return np.array(delays), np.array(gains)
 
 

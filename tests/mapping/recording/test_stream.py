@@ -21,11 +21,12 @@ from mapping.simulate.ism import IsmConfig, simulate_stretch
 from mapping.simulate.raw import RawConfig, RawRecording, simulate_raw
 
 CFG = SonarConfig()
-#: Every effect of issue 16 (floor / ceiling bounces alone, band-passes, 22 C air), 48 kHz.
+#: Every effect of issue 16 (floor / ceiling bounces alone, a body echo, band-passes, 22 C
+#: air), 48 kHz.
 ALL = RawConfig(fs_hz=48_000.0, latency_s=0.037, clock_offset_ppm=60.0,
                 transducer_offset_m=0.05, sonar_height_m=0.3, ceiling_height_m=2.6,
                 speaker_band_hz=(1_500.0, 18_000.0), mic_band_hz=(50.0, 19_000.0),
-                temperature_c=22.0)
+                temperature_c=22.0, body_echoes=((0.3, 0.3),))
 OPTIONS = RawImportOptions(static_removal="gated", sonar_height_m=0.3, ceiling_height_m=2.6,
                            temperature_c=22.0)
 ENGINE = IsmConfig(max_order=2, max_path_m=12.0)
@@ -72,7 +73,7 @@ def clean_block(run: Run, k: int, raw: RawConfig) -> Run:
 
 
 @pytest.mark.parametrize("effect", ["all", "latency+clock", "direct", "floor+ceiling", "bands",
-                                    "temperature"])
+                                    "temperature", "body"])
 def test_heat_map_peaks_of_a_raw_recording_are_the_clean_runs(effect: str) -> None:
     """Each effect alone and all together (no noise): the 6 strongest peaks of the clean
     block's heat map have a peak of the imported block within one range bin and one angle
@@ -87,6 +88,7 @@ def test_heat_map_peaks_of_a_raw_recording_are_the_clean_runs(effect: str) -> No
         "bands": RawConfig(transducer_offset_m=0.05, speaker_band_hz=(1_500.0, 18_000.0),
                            mic_band_hz=(50.0, 19_000.0)),
         "temperature": RawConfig(transducer_offset_m=0.05, temperature_c=22.0),
+        "body": RawConfig(transducer_offset_m=0.05, body_echoes=((0.3, 0.3),)),
     }[effect]
     opts = dataclasses.replace(OPTIONS, temperature_c=raw.temperature_c)
     if raw.sonar_height_m is None:

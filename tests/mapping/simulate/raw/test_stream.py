@@ -131,6 +131,22 @@ def test_direct_wave_delay_and_amplitude() -> None:
     assert np.max(np.abs(with_direct - without - truth)) < 1e-5 * 20
 
 
+def test_body_echo_constant_delay_no_doppler() -> None:
+    """A bumper echo (path 0.3 m, reflection 0.4) on a driving robot: the extra signal is
+    0.4 / 0.3 s(t - 0.3 / c), constant delay, to 1e-5 of its peak."""
+    on = _raw(0.3, driving(), fs_hz=40_000.0, body_echoes=((0.3, 0.4),))
+    off = _raw(0.3, driving(), fs_hz=40_000.0)
+    tau = np.arange(on.size) / CFG.fs_hz
+    truth = echo(0.3 / C, 0.4 / 0.3, tau)
+    assert np.max(np.abs(on - off - truth)) < 1e-5 * 1.4
+
+
+@pytest.mark.parametrize("bad", [((0.0, 0.5),), ((2.5, 0.5),), ((0.3, 1.5),), ((0.3,),)])
+def test_body_echoes_are_checked(bad: tuple[tuple[float, ...], ...]) -> None:
+    with pytest.raises(ValueError, match=r"body_echoes\[0\]"):
+        RawConfig(body_echoes=bad)  # type: ignore[arg-type]
+
+
 def test_floor_echo_constant_delay_no_doppler_one_over_r() -> None:
     """Sonar 0.3 m up, floor 0.9, a DRIVING robot: the extra signal is 0.9 / 0.6 s(t - 0.6 / c)
     (constant delay, zero Doppler) to 1e-5 of its peak."""
