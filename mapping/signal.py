@@ -355,11 +355,11 @@ def transmitted_exact(t_s: NDArray[np.floating], config: SonarConfig) -> FloatAr
     weights[0] = 1.0
     if p % 2 == 0:
         weights[-1] = 1.0
-    t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+    t = np.atleast_1d(np.asarray(t_s, dtype=np.float64)).ravel()
     out = np.empty(t.shape)
-    for j, tj in enumerate(t.ravel()):
-        phase = np.exp(2j * np.pi * k * ((tj * config.fs_hz) % p) / p)
-        out.flat[j] = np.sum(weights * (spec * phase).real)
+    for a in range(0, t.size, 256):  # 256 points x P / 2 phases at a time
+        phase = np.exp(2j * np.pi * np.outer(np.mod(t[a:a + 256] * config.fs_hz, p), k) / p)
+        out[a:a + 256] = (phase * (weights * spec)).real.sum(axis=1)
     return out.reshape(np.shape(t_s)) if np.ndim(t_s) else out
 
 

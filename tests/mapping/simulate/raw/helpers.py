@@ -8,7 +8,7 @@ import numpy as np
 
 from mapping.path import polyline_path, stationary_path
 from mapping.scene import Scene
-from mapping.signal import SonarConfig, tx_period
+from mapping.signal import SonarConfig, transmitted_exact
 from mapping.simulate.ism import IsmConfig
 
 CFG = SonarConfig(repetitions=1)  # P = 4092 samples, 0.1023 s
@@ -34,19 +34,6 @@ def driving(speed_m_s: float = 0.3):
     return polyline_path([(0.0, 0.5), (1.5, 0.5)], speed_m_s=speed_m_s)
 
 
-def periodic_truth(period: np.ndarray, fs_hz: float, tau_s: np.ndarray) -> np.ndarray:
-    """Exact trigonometric (band-limited periodic) interpolant of one period at ``tau_s``."""
-    p = period.size
-    spec = np.fft.rfft(period) / p
-    k = np.arange(spec.size)
-    weight = np.full(spec.size, 2.0)
-    weight[0] = 1.0
-    if p % 2 == 0:
-        weight[-1] = 1.0
-    phase = np.exp(2j * np.pi * np.outer(np.mod(tau_s * fs_hz, p), k) / p)
-    return np.asarray((phase * (weight * spec)).real.sum(axis=1))
-
-
 def echo(delay_s: float, gain: float, tau_s: np.ndarray) -> np.ndarray:
     """``gain * s(tau - delay)``, the exact band-limited transmitted signal, delayed."""
-    return gain * periodic_truth(np.asarray(tx_period(CFG)), CFG.fs_hz, tau_s - delay_s)
+    return gain * transmitted_exact(np.asarray(tau_s) - delay_s, CFG)
