@@ -99,7 +99,7 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
     import httpx
 
     from mapping.files import read_pose_csv
-    from mapping.recording import RawStreamer, block_odometry, poses_at
+    from mapping.recording import RawStreamer
 
     if args.stdin and args.rate is None:
         raise ValueError("--stdin needs --rate (the sound card's sample rate in Hz)")
@@ -118,9 +118,30 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
     streamer = RawStreamer(fs, config, options, calibration, warmup_s=args.warmup)
     own = http is None
     client = httpx.Client(base_url=args.url, timeout=60.0) if own else http
-    sid: str | None = None
     if not args.json:
         print("  seq    t_s       x       y     yaw  status      sd_m   log_err_m")
+    try:
+        _stream_blocks(args, config, log, streamer, chunks, client)
+    except httpx.HTTPStatusError as exc:
+        raise ValueError(f"the service at {args.url} answered {exc.response.status_code}: "
+                         f"{exc.response.text[:300]}") from None
+    except httpx.HTTPError as exc:
+        raise ValueError(f"the service at {args.url}: {exc} (is `omnisonar serve` running "
+                         "there?)") from None
+    finally:
+        if own:
+            client.close()
+    return 0
+
+
+def _stream_blocks(args: argparse.Namespace, config: Any, log: Any, streamer: Any,
+                   chunks: Iterator[np.ndarray], client: Any) -> None:
+    """Push every chunk, POST every block that comes out, print the answers; the session is
+    closed at the end (also on an error)."""
+    from mapping.recording import block_odometry, poses_at
+
+    options = streamer.options
+    sid: str | None = None
     try:
         for chunk in chunks:
             for blk in streamer.push(chunk):
@@ -146,11 +167,8 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
     finally:
         if sid is not None:
             client.delete(f"/sessions/{sid}")
-        if own:
-            client.close()
     if sid is None:
         raise ValueError("no block was cut from the recording: too short, or no pose for it")
-    return 0
 
 
 def _open(client: Any, args: argparse.Namespace, start: tuple[float, float, float] | None,

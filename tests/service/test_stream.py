@@ -113,6 +113,9 @@ def test_stream_refusals(files: tuple[Path, Path], client: TestClient) -> None:
     with pytest.raises(ValueError, match="calibration"):
         _cmd_stream(parse(["stream", "--wav", str(wav), "--poses", str(poses), "--static",
                            "calibration"]), http=client)
+    with pytest.raises(ValueError, match="omnisonar serve"):  # nothing listens on port 9
+        _cmd_stream(parse(["stream", "--wav", str(wav), "--poses", str(poses), "--pace", "0",
+                           "--url", "http://127.0.0.1:9"]))
     silence = io.BytesIO(np.zeros(48_000 * 4, dtype="<i2").tobytes())
     with pytest.raises(ValueError, match="direct path"):
         _cmd_stream(parse(["stream", "--stdin", "--rate", "48000", "--poses", str(poses)]),
