@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import time
 import zlib
@@ -309,14 +310,18 @@ def ratio_rows(scenes: Sequence[dict[str, Any]]) -> list[str]:
 
 
 def plot(scenes: Sequence[dict[str, Any]], path: Path) -> None:
+    """Wall F1, raster F1 and tracking RMSE per scene and variant, and accuracy against cost:
+    each raw variant's mean tracking RMSE against its import seconds per minute of recording
+    (the clean run at the clean simulation's cost, for scale)."""
     variants = list(scenes[0]["variants"])
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 4, figsize=(19, 4.6),
+                             gridspec_kw={"width_ratios": [1.2, 1.2, 1.2, 1.0]})
     width = 0.8 / len(variants)
     x = np.arange(len(scenes))
     panels = (("map", "wall_f1", "wall F1 (map from the curved run)"),
               ("map", "raster_f1", "raster F1"),
               ("localization", "position_rmse_m", "tracking RMSE (m), log"))
-    for ax, (part, key, title) in zip(axes, panels, strict=True):
+    for ax, (part, key, title) in zip(axes[:3], panels, strict=True):
         for i, v in enumerate(variants):
             vals = [sc["variants"][v].get(part, {}).get(key, math.nan) for sc in scenes]
             ax.bar(x + (i - len(variants) / 2 + 0.5) * width, vals, width, label=v)
@@ -324,9 +329,23 @@ def plot(scenes: Sequence[dict[str, Any]], path: Path) -> None:
         ax.set_title(title, fontsize=10)
         if key == "position_rmse_m":
             ax.set_yscale("log")
-    axes[0].legend(fontsize=7)
-    fig.suptitle("raw recordings (48 kHz, every effect, SNR 10 dB) against clean runs", fontsize=11)
-    fig.tight_layout()
+    ax = axes[3]
+    for i, v in enumerate(variants):
+        rmse = np.nanmean([sc["variants"][v].get("localization", {}).get(
+            "position_rmse_m", math.nan) for sc in scenes])
+        cost = np.mean([sc["cost"]["clean_sim_s_per_min"] if v == "clean" else
+                        sc["variants"][v].get("import_s_per_min", math.nan) for sc in scenes])
+        ax.scatter(cost, rmse, s=60, color=f"C{i}")
+        ax.annotate(v, (cost, rmse), fontsize=7, xytext=(4, 3), textcoords="offset points")
+    ax.set_yscale("log")
+    ax.set_xlabel("s per minute of recording (import; clean: its simulation)")
+    ax.set_ylabel("mean tracking RMSE (m)")
+    ax.set_title("accuracy vs cost", fontsize=10)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=len(variants),
+               fontsize=8, frameon=False)
+    fig.suptitle("raw recordings (48 kHz, every effect, SNR 10 dB) against clean runs",
+                 fontsize=11)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     tmp = path.with_suffix(".tmp.png")
     fig.savefig(tmp, dpi=110)
     plt.close(fig)
@@ -365,7 +384,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", nargs="+", default=builtin_scene_names())
     ap.add_argument("--seeds", type=int, default=2, help="global starts per localized run")
+    ap.add_argument("--plot-only", action="store_true",
+                    help="redraw raw_recordings.png from raw_recordings.json")
     args = ap.parse_args(argv)
+    if args.plot_only:
+        plot(json.loads((RESULTS / "raw_recordings.json").read_text())["scenes"],
+             RESULTS / "raw_recordings.png")
+        return 0
     t0 = time.perf_counter()
     env = environment()
     scenes = [scene_case(s, args.seeds) for s in tqdm(args.scenes, desc="scenes")]
