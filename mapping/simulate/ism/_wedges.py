@@ -43,11 +43,17 @@ def _segments(segments_m: ArrayLike) -> FloatArray:
 
 
 def _distance_to_wall(point: FloatArray, seg: FloatArray) -> tuple[float, float]:
-    """Distance from a point to a segment and the segment parameter of the nearest point."""
+    """Distance from a point to a segment and the segment parameter of the nearest point.
+
+    Where the nearest point is an end, the distance is to that end exactly (``a + 1 * e``
+    can miss ``b`` by a rounding error, and then a wall end exactly ``tol_m`` from another
+    wall's end counted as free here while the wedge search merged the two into one vertex:
+    the clean-clone CI failure of ``test_free_ends_are_the_full_turn_wedges``)."""
     a, b = seg
     e = b - a
     u = float(np.clip(np.dot(point - a, e) / np.dot(e, e), 0.0, 1.0))
-    return float(np.hypot(*(a + u * e - point))), u
+    nearest = a if u <= 0.0 else b if u >= 1.0 else a + u * e
+    return float(np.hypot(*(nearest - point))), u
 
 
 def free_wall_ends(segments_m: ArrayLike, tol_m: float = 1e-6) -> list[tuple[int, FloatArray]]:
