@@ -27,15 +27,20 @@ from mapping.run import Run
 def open_session(http: httpx.Client, map_id: str, particles: int, seed: int,
                  initial_pose: tuple[float, float, float] | None,
                  wait_s: float = 300.0, beta: float | None = None,
-                 sound_speed_m_s: float | None = None) -> str:
+                 sound_speed_m_s: float | None = None,
+                 heights_m: tuple[float | None, float | None] = (None, None)) -> str:
     """``POST /sessions`` (retrying while the default map is still being built); ``beta``:
     the map's calibrated sensor sharpness, if any (``omnisonar calibrate``);
-    ``sound_speed_m_s``: the air's, if not the map's."""
+    ``sound_speed_m_s``: the air's, if not the map's; ``heights_m``: the sonar's and the
+    ceiling's height, for the floor / ceiling copies of the echo model."""
     body: dict[str, Any] = {"map_id": map_id, "particles": particles, "seed": seed}
     if beta is not None:
         body["beta"] = beta
     if sound_speed_m_s is not None:
         body["sound_speed_m_s"] = sound_speed_m_s
+    for key, value in zip(("sonar_height_m", "ceiling_height_m"), heights_m, strict=True):
+        if value is not None:
+            body[key] = value
     if initial_pose is None:
         body["global"] = True
     else:

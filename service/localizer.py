@@ -130,8 +130,16 @@ class LocalizationFactory:
         sound from ``config`` and ``tables.sonar``)."""
         base, config = self.tables(map_id, spec.map_sha256)
         tables = base
-        if spec.beta is not None:
-            sensor = dataclasses.replace(base.config, beta=float(spec.beta))
+        if (spec.beta is not None or spec.sonar_height_m is not None
+                or spec.ceiling_height_m is not None):
+            try:
+                sensor = dataclasses.replace(
+                    base.config, sonar_height_m=spec.sonar_height_m,
+                    ceiling_height_m=spec.ceiling_height_m,
+                    beta=base.config.beta if spec.beta is None else float(spec.beta))
+            except ValueError as exc:
+                raise InvalidSpec("ceiling_height_m", str(exc),
+                                  "above sonar_height_m") from None
             tables = dataclasses.replace(base, config=sensor)
         if spec.sound_speed_m_s is not None:
             config = dataclasses.replace(config, sound_speed_m_s=float(spec.sound_speed_m_s))

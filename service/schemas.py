@@ -166,6 +166,11 @@ class SessionCreate(_Strict):
         "(331.3 sqrt(1 + T/273.15) m/s at T deg C; `omnisonar stream --temperature` sends it); "
         "default: the map's sonar config. Ranges and Doppler angles scale with it: 1.7 % for "
         "10 K")
+    sonar_height_m: float | None = Field(
+        None, gt=0, le=10, description="the sonar's height above the floor (m): the echo "
+        "model then also predicts every wall echo's copies off the floor (and the ceiling)")
+    ceiling_height_m: float | None = Field(
+        None, gt=0, le=50, description="the ceiling's height (m), with sonar_height_m")
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
 
@@ -255,6 +260,9 @@ class SessionInfo(BaseModel):
                                "(null: the server's default)")
     sound_speed_m_s: float | None = Field(None, description="speed of sound asked for at "
                                           "creation (null: the map's)")
+    sonar_height_m: float | None = Field(None, description="sonar height asked for (null: a "
+                                         "2-D room)")
+    ceiling_height_m: float | None = Field(None, description="ceiling height asked for")
     created_at: float
     last_active_at: float
     expires_in_s: float

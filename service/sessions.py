@@ -60,6 +60,8 @@ class FilterSpec:
     beta: float | None = None       # sensor sharpness; None: the server's default
     map_sha256: str | None = None   # content hash of the map the session runs on (issue 17)
     sound_speed_m_s: float | None = None  # the session's air; None: the map's (issue 16)
+    sonar_height_m: float | None = None   # floor / ceiling for the echo model (issue 16)
+    ceiling_height_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -75,9 +77,15 @@ class FilterSpec:
             initial_covariance=None if cov is None else tuple(tuple(map(float, r)) for r in cov),
             beta=None if d.get("beta") is None else float(d["beta"]),
             map_sha256=None if d.get("map_sha256") is None else str(d["map_sha256"]),
-            sound_speed_m_s=(None if d.get("sound_speed_m_s") is None
-                             else float(d["sound_speed_m_s"])),
+            sound_speed_m_s=_opt_float(d, "sound_speed_m_s"),
+            sonar_height_m=_opt_float(d, "sonar_height_m"),
+            ceiling_height_m=_opt_float(d, "ceiling_height_m"),
         )
+
+
+def _opt_float(d: dict[str, Any], key: str) -> float | None:
+    """``d[key]`` as a float, None when absent (older checkpoints) or null."""
+    return None if d.get(key) is None else float(d[key])
 
 
 @dataclass(frozen=True)

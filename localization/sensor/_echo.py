@@ -37,7 +37,7 @@ from localization.sensor import _kernels as _k
 from localization.sensor._config import ECHO_NATS
 from localization.sensor._measurement import Measurement
 from localization.sensor._tables import SensorTables, end_weights, uniform_free_poses
-from mapping.forward import EchoBatch, ForwardParams, echoes_batch
+from mapping.forward import EchoBatch, ForwardParams, echoes_batch, with_vertical
 
 FloatArray = NDArray[np.float64]
 
@@ -121,8 +121,16 @@ def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArra
         run_on, end_sigma = tables.soft_ends
         b = echoes_batch(run_on, poses, measurement.speed_m_s, tables.sonar, params)
         level = b.amplitude * end_weights(tables.walls, end_sigma, b.walls, b.points_m)
+        sigma = map_range_sigma(tables, b)
+        dz, refl = tables.config.vertical()
+        if dz.size:  # floor / ceiling copies: explain peaks, never expected (level 0)
+            copies = 1 + dz.size
+            b = with_vertical(b, dz, refl)
+            level = np.repeat(level, copies, axis=1)
+            level[:, np.arange(level.shape[1]) % copies != 0] = 0.0
+            sigma = None if sigma is None else np.repeat(sigma, copies, axis=1)
         out = _k.score_echo(b.count, b.range_m, b.cos_doppler, level, peaks,
-                            _terms(tables), map_range_sigma(tables, b))
+                            _terms(tables), sigma)
     return Explanation(log_likelihood=out[:, 0], explained=out[:, 1], heard=out[:, 2],
                        n_peaks=measurement.n_peaks)
 

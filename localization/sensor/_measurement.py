@@ -184,7 +184,7 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
     """
     rows = 1 if directional else int(np.asarray(heat_map.H).shape[0])
     params = PeakParams(snr=config.peak_snr, min_relative=0.08, min_range_m=config.min_range_m,
-                        max_range_m=config.max_range_m, max_peaks=config.max_peaks * rows,
+                        max_range_m=config.max_range_m, max_peaks=config.peaks_read * rows,
                         min_speed_m_s=0.0)
     # only the lags up to the sensor's range (plus the peak window) can hold a peak it reads
     cols = min(int(np.searchsorted(heat_map.ranges_m, config.max_range_m)) + 2 * 12 + 1,
@@ -196,7 +196,7 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
     if not directional:
         # every row of eq. 1 is the same without direction information: one peak per range
         _, first = np.unique(np.round(pk.range_m, 6), return_index=True)
-        keep = np.sort(first)[: config.max_peaks]        # strongest first, as heatmap_peaks
+        keep = np.sort(first)[: config.peaks_read]       # strongest first, as heatmap_peaks
         pk = Peaks(range_m=pk.range_m[keep], angle_rad=pk.angle_rad[keep],
                    value=pk.value[keep], noise=pk.noise)
     peaks = _EchoPeaks(r=np.ascontiguousarray(pk.range_m, dtype=np.float64),

@@ -18,6 +18,8 @@ Notes
 Private modules: ``_echoes`` (`WallSet`, `ForwardParams`, `Echoes`, `EchoBatch`, the
 wrappers), ``_render`` (point-spread tables and rendering), ``_order`` (`required_order`),
 ``_compare`` (peak matching, correlation), ``_corners`` (right corners at the vertex),
+``_vertical`` (floor and ceiling: `vertical_images`, and `with_vertical` adding every
+echo's copies through them),
 ``_kernels`` (the numba kernels: path enumeration
 and tracing, rendering; their numpy twins are in ``tests/mapping/forward/naive.py``).
 """
@@ -54,6 +56,7 @@ from mapping.forward._render import (
     psf_tables,
     render_heatmap,
 )
+from mapping.forward._vertical import vertical_images, with_vertical
 
 __all__ = [
     "COINCIDENT_COS",
@@ -80,6 +83,8 @@ __all__ = [
     "psf_tables",
     "render_heatmap",
     "required_order",
+    "vertical_images",
+    "with_vertical",
     "right_corners",
     "shared_vertices",
     "vertex_paths",

@@ -398,7 +398,8 @@ def import_raw(samples: ArrayLike, fs_hz: float, log: PoseLog, config: SonarConf
         warnings=(),
     )
     report = replace(report, warnings=_warnings(report, opts, blocks.shape[0]))
-    return replace(run, meta={**run.meta, "raw_import": report.to_dict()}), report
+    return replace(run, meta={**run.meta, "raw_import": report.to_dict(),
+                              "raw_import_options": asdict(opts)}), report
 
 
 def _sound_speed(config: SonarConfig, options: RawImportOptions) -> float:

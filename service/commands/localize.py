@@ -41,6 +41,12 @@ def add_localize(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
     p.add_argument("--beta", type=float, default=None,
                    help="sensor sharpness (default 200; `omnisonar calibrate` picks one per map)")
+    p.add_argument("--sonar-height", type=float, metavar="M",
+                   help="sonar height above the floor: the echo model also predicts the "
+                   "floor / ceiling copies of every wall echo (default: the height the run was "
+                   "imported with, `import-run --raw --sonar-height`, else none)")
+    p.add_argument("--ceiling-height", type=float, metavar="M",
+                   help="ceiling height (with the sonar height; default as --sonar-height)")
     p.add_argument("--out", metavar="TRACK.csv",
                    help="write the track as CSV: pose, full covariance, status per block")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
@@ -64,6 +70,12 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     sensor = SensorConfig(model=resolve_model(wall_map, args.model))
     if args.beta is not None:
         sensor = dataclasses.replace(sensor, beta=args.beta)   # validated by SensorConfig
+    imported = run.meta.get("raw_import_options", {})
+    h = args.sonar_height if args.sonar_height is not None else imported.get("sonar_height_m")
+    top = (args.ceiling_height if args.ceiling_height is not None
+           else imported.get("ceiling_height_m"))
+    if h is not None or top is not None:
+        sensor = dataclasses.replace(sensor, sonar_height_m=h, ceiling_height_m=top)
     tables = build_tables(wall_map, sensor, sonar=run.config)
     tracked = np.asarray(np.isfinite(run.pose).all(axis=1), dtype=bool)
     if args.init == "tracked" and not tracked[0]:

@@ -174,11 +174,13 @@ def _stream_blocks(args: argparse.Namespace, config: Any, log: Any, streamer: An
 def _open(client: Any, args: argparse.Namespace, start: tuple[float, float, float] | None,
           sound_speed_m_s: float | None) -> str:
     """The session; with ``--temperature`` the service processes the blocks at the air's
-    speed of sound too (not only the import's timing)."""
+    speed of sound too (not only the import's timing), with the heights its echo model
+    predicts the floor / ceiling copies of every wall echo."""
     from service.client_example import open_session
 
     return open_session(client, args.map, args.particles, 0, start,
-                        sound_speed_m_s=sound_speed_m_s)
+                        sound_speed_m_s=sound_speed_m_s,
+                        heights_m=(args.sonar_height, args.ceiling_height))
 
 
 def _print(args: argparse.Namespace, seq: int, t_s: float, est: dict[str, Any],

@@ -171,3 +171,26 @@ def test_stream_temperature_reaches_the_service(files: tuple[Path, Path], client
     assert _cmd_stream(args, http=client) == 0
     not_told = [float(ln["log_error_m"]) for ln in _lines(capsys.readouterr().out)]  # type: ignore[arg-type]
     assert max(told) < 0.05 and np.mean(told) < np.mean(not_told), (told, not_told)
+
+
+def test_session_heights_reach_the_echo_model(client: TestClient) -> None:
+    """``sonar_height_m`` / ``ceiling_height_m`` at creation reach the session's sensor
+    config (the map's shared tables stay 2-D), survive the spec's round trip, and a
+    ceiling below the sonar is refused naming the field."""
+    from service.sessions import FilterSpec
+
+    r = client.post("/sessions", json={"map_id": "room", "particles": 100,
+                                       "sonar_height_m": 0.3, "ceiling_height_m": 2.6,
+                                       "initial_pose": {"x": 1.0, "y": 1.0, "yaw": 0.4}})
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    info = client.get(f"/sessions/{sid}").json()
+    assert (info["sonar_height_m"], info["ceiling_height_m"]) == (0.3, 2.6)
+    session = client.app.state.sessions.get(sid)  # type: ignore[attr-defined]
+    assert session.tracker.tables.config.vertical()[0].size == 3
+    assert session.tracker.base_tables.config.sonar_height_m is None
+    spec = FilterSpec.from_dict(session.spec.to_dict())
+    assert (spec.sonar_height_m, spec.ceiling_height_m) == (0.3, 2.6)
+    bad = client.post("/sessions", json={"map_id": "room", "sonar_height_m": 2.0,
+                                         "ceiling_height_m": 1.0})
+    assert bad.status_code == 422 and "ceiling_height_m" in bad.text

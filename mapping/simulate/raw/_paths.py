@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter
 
+from mapping.forward import vertical_images as forward_vertical_images
 from mapping.simulate.ism import StretchPlan
 from mapping.simulate.raw._config import RawConfig
 
@@ -29,26 +30,11 @@ FloatArray = NDArray[np.float64]
 
 def vertical_images(raw: RawConfig) -> tuple[FloatArray, FloatArray]:
     """Vertical path lengths ``dz`` (m, increasing) and reflection products of the floor and
-    ceiling images with at most ``raw.vertical_bounces`` bounces (empty without a floor)."""
-    h, top = raw.sonar_height_m, raw.ceiling_height_m
-    if h is None:
-        return np.zeros(0), np.zeros(0)
-    rf, rc = raw.floor_reflection, raw.ceiling_reflection
-    found: dict[float, float] = {}
-    if top is None:  # a floor alone: one image
-        found[2.0 * h] = rf
-    else:
-        for m in range(-raw.vertical_bounces, raw.vertical_bounces + 1):
-            # z = 2 m H + h (m != 0) and z = 2 m H - h
-            if m != 0 and 2 * abs(m) <= raw.vertical_bounces:
-                dz = 2.0 * abs(m) * top
-                found[dz] = found.get(dz, 0.0) + rf ** abs(m) * rc ** abs(m)
-            n_floor, n_ceiling = (m - 1, m) if m >= 1 else (1 - m, -m)
-            if n_floor + n_ceiling <= raw.vertical_bounces:
-                dz = abs(2.0 * m * top - 2.0 * h)
-                found[dz] = found.get(dz, 0.0) + rf**n_floor * rc**n_ceiling
-    dz_m = np.array(sorted(k for k, v in found.items() if v != 0.0))
-    return dz_m, np.array([found[k] for k in dz_m])
+    ceiling images with at most ``raw.vertical_bounces`` bounces (empty without a floor):
+    :func:`mapping.forward.vertical_images`, the one the echo sensor model predicts with."""
+    return forward_vertical_images(raw.sonar_height_m, raw.ceiling_height_m,
+                                   raw.floor_reflection, raw.ceiling_reflection,
+                                   raw.vertical_bounces)
 
 
 def static_paths(raw: RawConfig, c: float) -> tuple[FloatArray, FloatArray]:
