@@ -24,7 +24,9 @@ simulating and importing (seconds per minute of recording). Then three harder ca
 (imported with 12 C while the air is at 22 C: a 10 K error, 1.7 % of the speed of sound) and
 ``wallvia``: the wall paths heard via the floor and the ceiling as well (``vertical_order=2``:
 each wall echo gets a copy 2-4 cm behind it off the floor and one up to metres behind it off
-the ceiling, which a 2-D map cannot explain).
+the ceiling), localized with the echo model told the heights (it predicts the copies) and,
+``wallvia-2d``, without (the copies are clutter to it). Wherever the import was given the
+heights, the localization is too (``omnisonar localize`` takes them from the run file).
 
 Writes ``benchmarks/results/raw_recordings.json`` and ``raw_recordings.png``. Run:
 ``python -m benchmarks.raw_recordings [--scenes paper l-room ...] [--seeds 2]``.
@@ -57,13 +59,13 @@ from benchmarks.localization_echo import (
     engine,
     environment,
     global_trial,
-    make_tables,
     tracking_trial,
     with_odometry_noise,
     write_json,
 )
 from benchmarks.wall_maps import score_map
 from localization.particle_filter import block_odometry
+from localization.sensor import SensorConfig, build_tables
 from mapping.build import BuildParams, RunSource, build_map
 from mapping.heatmap import heatmap_of_run
 from mapping.path import (
@@ -202,11 +204,18 @@ def feed_of(run: Run, truth_speed: np.ndarray, seed: int) -> Feed:
     return Feed(hms, v, w, dt, run.pose.copy(), truth_speed)
 
 
-def localization(wm: WallMap | str, run: Run, scene: Scene, seeds: int, seed: int
-                 ) -> dict[str, Any]:
-    tables = make_tables(wm, "echo", run.config)
-    if isinstance(tables, str):
-        return {"ok": False, "error": tables}
+def localization(wm: WallMap | str, run: Run, scene: Scene, seeds: int, seed: int,
+                 heights: bool = False) -> dict[str, Any]:
+    """Tracking and global starts of ``run`` on ``wm`` with the echo model; ``heights``: the
+    model told the sonar and ceiling heights (floor / ceiling copies of every echo), as
+    ``omnisonar localize`` is for a run imported with them."""
+    if isinstance(wm, str):
+        return {"ok": False, "error": f"map build failed: {wm}"}
+    sensor = SensorConfig(model="echo")
+    if heights:
+        sensor = dataclasses.replace(sensor, sonar_height_m=SONAR_HEIGHT_M,
+                                     ceiling_height_m=CEILING_HEIGHT_M)
+    tables = build_tables(wm, sensor, sonar=run.config)
     feed = feed_of(run, run.speed_m_s.copy(), seed)
     images = Images(scene, run.config)
     track, _ = tracking_trial(tables, feed, N_PARTICLES, images)
@@ -261,12 +270,17 @@ def scene_case(name: str, seeds: int) -> dict[str, Any]:
     rec_loc3, _ = raw_recording(scene, tr_loc, seed_loc, raw3)
     out["variants"]["raw-gated-wallvia"] = raw_variant(scene, rec_map3, rec_loc3, cal, "gated",
                                                        TEMPERATURE_C, map_path, seeds, minutes)
+    out["variants"]["raw-gated-wallvia-2d"] = raw_variant(
+        scene, rec_map3, rec_loc3, cal, "gated", TEMPERATURE_C, map_path, seeds, minutes,
+        sensor_heights=False)
     return out
 
 
 def raw_variant(scene: Scene, rec_map: Any, rec_loc: Any, cal: Any, method: str,
                 temperature_c: float, map_path: str, seeds: int, minutes: float,
-                heights: bool = True) -> dict[str, Any]:
+                heights: bool = True, sensor_heights: bool | None = None) -> dict[str, Any]:
+    """Import (``heights``: the import told the heights), map, localize (``sensor_heights``,
+    default ``heights``: the echo model told them too)."""
     try:
         run_map, rep_map, s1 = imported(rec_map, method, temperature_c, cal, heights)
         run_loc, rep_loc, s2 = imported(rec_loc, method, temperature_c, cal, heights)
@@ -274,7 +288,8 @@ def raw_variant(scene: Scene, rec_map: Any, rec_loc: Any, cal: Any, method: str,
         return {"error": str(exc)}
     wm = build(run_map, map_path)
     return {"map": map_scores(wm, scene, run_map.pose),
-            "localization": localization(wm, run_loc, scene, seeds, 7),
+            "localization": localization(wm, run_loc, scene, seeds, 7,
+                                         heights if sensor_heights is None else sensor_heights),
             "import": report_errors(rep_map, rec_map.raw, 0.05),
             "import_loc": report_errors(rep_loc, rec_loc.raw, 0.05),
             "import_s_per_min": (s1 + s2) / minutes,
