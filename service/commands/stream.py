@@ -17,11 +17,15 @@ import math
 import sys
 import time
 from collections.abc import Iterator
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
 from service.commands.runs import _load_config, add_raw_import_options, raw_import_options
+
+if TYPE_CHECKING:
+    from mapping.recording import PoseLog, RawStreamer
+    from mapping.signal import SonarConfig
 
 #: PCM sample formats accepted on stdin: numpy dtype and full scale.
 PCM_FORMATS = {"s16le": ("<i2", 32768.0), "s32le": ("<i4", 2147483648.0),
@@ -134,8 +138,8 @@ def _cmd_stream(args: argparse.Namespace, http: Any = None, stdin: BinaryIO | No
     return 0
 
 
-def _stream_blocks(args: argparse.Namespace, config: Any, log: Any, streamer: Any,
-                   chunks: Iterator[np.ndarray], client: Any) -> None:
+def _stream_blocks(args: argparse.Namespace, config: SonarConfig, log: PoseLog,
+                   streamer: RawStreamer, chunks: Iterator[np.ndarray], client: Any) -> None:
     """Push every chunk, POST every block that comes out, print the answers; the session is
     closed at the end (also on an error)."""
     from mapping.recording import block_odometry, poses_at
