@@ -52,6 +52,7 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmarks._common import RESULTS
+from benchmarks._heldout import heldout_path, heldout_path_names, heldout_scene
 from benchmarks.localization_echo import (
     ODO_SPEED_SD_M_S,
     Feed,
@@ -237,12 +238,24 @@ def report_errors(report: RawImportReport, raw: RawConfig, offset_m: float) -> d
             "warnings": list(report.warnings), "offset_m": offset_m}
 
 
+def scene_and_paths(name: str) -> tuple[Scene, str, str, Trajectory, Trajectory]:
+    """A built-in scene (its curved and straight paths) or a held-out one of ``scenes/``
+    (its ``-curve`` path mapped, its first other path localized)."""
+    if name in builtin_scene_names():
+        map_path, loc_path = paths_of(name)
+        return (builtin_scene(name), map_path, loc_path, builtin_path(map_path, SPEED_M_S),
+                builtin_path(loc_path, SPEED_M_S))
+    map_path = f"{name}-curve"
+    loc_path = next(p for p in heldout_path_names(name) if p != map_path)
+    return (heldout_scene(name), map_path, loc_path,
+            heldout_path(map_path).trajectory(SPEED_M_S),
+            heldout_path(loc_path).trajectory(SPEED_M_S))
+
+
 def scene_case(name: str, seeds: int) -> dict[str, Any]:
-    scene = builtin_scene(name)
-    map_path, loc_path = paths_of(name)
+    scene, map_path, loc_path, tr_map, tr_loc = scene_and_paths(name)
     out: dict[str, Any] = {"scene": name, "map_path": map_path, "loc_path": loc_path,
                            "variants": {}}
-    tr_map, tr_loc = builtin_path(map_path, SPEED_M_S), builtin_path(loc_path, SPEED_M_S)
     seed_map, seed_loc = zlib.crc32(map_path.encode()), zlib.crc32(loc_path.encode())
     t0 = time.perf_counter()
     clean_map, clean_loc = clean_run(scene, tr_map, seed_map), clean_run(scene, tr_loc, seed_loc)
@@ -401,10 +414,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=2, help="global starts per localized run")
     ap.add_argument("--plot-only", action="store_true",
                     help="redraw raw_recordings.png from raw_recordings.json")
+    ap.add_argument("--tag", default="", help="write raw_recordings_TAG.json/.png (with "
+                    "--scenes: a subset beside the built-in scenes' results)")
     args = ap.parse_args(argv)
+    stem = f"raw_recordings_{args.tag}" if args.tag else "raw_recordings"
     if args.plot_only:
-        plot(json.loads((RESULTS / "raw_recordings.json").read_text())["scenes"],
-             RESULTS / "raw_recordings.png")
+        plot(json.loads((RESULTS / f"{stem}.json").read_text())["scenes"],
+             RESULTS / f"{stem}.png")
         return 0
     t0 = time.perf_counter()
     env = environment()
@@ -417,14 +433,14 @@ def main(argv: Sequence[str] | None = None) -> int:
               "environment_start": env, "environment_end": environment(),
               "scenes": scenes, "summary": summarize(scenes),
               "runtime_s": time.perf_counter() - t0}
-    write_json(RESULTS / "raw_recordings.json", result)
-    plot(scenes, RESULTS / "raw_recordings.png")
+    write_json(RESULTS / f"{stem}.json", result)
+    plot(scenes, RESULTS / f"{stem}.png")
     for line in ratio_rows(scenes):
         print(line)
     summary: dict[str, Any] = result["summary"]  # type: ignore[assignment]
     for v, row in summary.items():
         print(v, {k: (round(x, 3) if isinstance(x, float) else x) for k, x in row.items()})
-    print(f"wrote {RESULTS / 'raw_recordings.json'} ({result['runtime_s']:.0f} s)")
+    print(f"wrote {RESULTS / (stem + '.json')} ({result['runtime_s']:.0f} s)")
     return 0
 
 
