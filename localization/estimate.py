@@ -103,6 +103,10 @@ class PoseEstimate:
         models and for a block without peaks).
     covered : bool
         Whether the estimate lies on a map cell with evidence (``WallMap.coverage``).
+    refined : bool
+        Whether ``pose`` and ``cov`` come from the Gaussian refinement of the converged mode
+        (:mod:`localization.refine`) rather than from the particles of that mode (``modes``
+        always hold the particles' view).
     """
 
     pose: FloatArray
@@ -119,6 +123,7 @@ class PoseEstimate:
     status: str = "uncertain"
     fit: float = math.nan
     covered: bool = True
+    refined: bool = False
 
 
 

@@ -245,6 +245,9 @@ class Estimate(BaseModel):
         None, description="echo model: how well the estimate explains the block, in [0, 1] "
         "(null for the G models or a block without echoes)")
     covered: bool = Field(True, description="the estimate lies where the map has evidence")
+    refined: bool = Field(False, description="pose and covariance come from the Gaussian "
+                          "refinement of the converged mode on the block's echoes (echo model) "
+                          "rather than from the particles; modes are always the particles'")
     processing_ms: float = Field(description="server time for this update")
 
 

@@ -233,7 +233,7 @@ def estimate_to_json(est: PoseEstimate) -> dict[str, Any]:
         "direction_observable": bool(est.direction_observable), "updated": bool(est.updated),
         "model": str(est.model), "likelihood_scale": float(est.likelihood_scale),
         "status": str(est.status), "fit": None if math.isnan(est.fit) else float(est.fit),
-        "covered": bool(est.covered),
+        "covered": bool(est.covered), "refined": bool(est.refined),
     }
 
 
@@ -257,7 +257,7 @@ def estimate_from_json(d: dict[str, Any]) -> PoseEstimate:
             likelihood_scale=float(d["likelihood_scale"]),
             status=str(d.get("status", "converged" if d["converged"] else "uncertain")),
             fit=math.nan if d.get("fit") is None else float(d["fit"]),
-            covered=bool(d.get("covered", True)))
+            covered=bool(d.get("covered", True)), refined=bool(d.get("refined", False)))
     extra = d.get("extra", {})
     cov = arr(d["covariance"])
     return PoseEstimate(

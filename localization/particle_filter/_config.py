@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from localization.estimate import ClusterConfig
 from localization.motion import MotionNoise
 from localization.particle_filter._rivals import RivalParams
+from localization.refine import RefineConfig
 
 
 @dataclass(frozen=True)
@@ -134,6 +135,9 @@ class FilterConfig:
         filter stayed ``converged`` 5 m off for 7 blocks, with 1.5 and 0.9 for 2.
     motion : MotionNoise
     cluster : ClusterConfig
+    refine : RefineConfig
+        Echo model: the Gaussian refinement of the converged mode (:mod:`localization.refine`),
+        which reports ``pose`` and ``cov`` while it explains the blocks.
     """
 
     n_particles: int = 2000
@@ -175,6 +179,7 @@ class FilterConfig:
     rival_memory: float = 0.9
     motion: MotionNoise = field(default_factory=MotionNoise)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_particles <= 10_000_000:
@@ -268,4 +273,6 @@ class FilterConfig:
         d.pop("inject_threshold_nats", None)
         d["motion"] = MotionNoise(**d["motion"])
         d["cluster"] = ClusterConfig(**d["cluster"])
+        # checkpoints written before the refinement existed get its defaults
+        d["refine"] = RefineConfig(**d.get("refine", {}))
         return cls(**d)

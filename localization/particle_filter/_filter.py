@@ -9,7 +9,9 @@ object that holds the arrays and calls them in order, one sonar block per :meth:
 3. weigh: add the sensor log-likelihood (:mod:`localization.sensor`), normalize by
    log-sum-exp, and update the augmented-MCL averages ``w_slow``/``w_fast``
    (Thrun et al., *Probabilistic Robotics*, Table 8.3);
-4. summarize the weighted set (:mod:`localization.estimate`);
+4. summarize the weighted set (:mod:`localization.estimate`); while the status is
+   ``converged`` (echo model) the reported pose and covariance come from a Gaussian that
+   follows the mode and is refined on each block's echoes (:mod:`localization.refine`);
 5. resample systematically when ESS < ``resample_ess_fraction * n``, replacing a share
    ``max(0, 1 - e^t w_fast / w_slow)`` (threshold t) of particles by fresh poses drawn
    over the free space (candidates importance-weighted by the current block, i.e. sensor
@@ -41,7 +43,7 @@ from numpy.typing import NDArray
 from scipy.special import logsumexp
 from scipy.stats import norm
 
-from localization import motion, resampling
+from localization import motion, refine, resampling
 from localization.estimate import PoseEstimate, default_start_cov, summarize
 from localization.motion import MotionNoise
 from localization.particle_filter import _rivals
@@ -316,6 +318,8 @@ class ParticleFilter:
         self.last_pose: FloatArray | None = None
         self.twin_gap = np.zeros(0)
         self.rivals = Rivals.none()
+        self.track: tuple[FloatArray, FloatArray] | None = None
+        self.scatter = refine.Scatter.none()
         if pose is None:
             self.reset_global()
         else:
@@ -336,6 +340,7 @@ class ParticleFilter:
         self.anchored = False
         self.last_pose = None
         self.rivals = Rivals.none()
+        self.track = None
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -348,6 +353,7 @@ class ParticleFilter:
         self.anchored = True
         self.last_pose = None
         self.rivals = Rivals.none()
+        self.track = None
         c = np.asarray(cov, dtype=np.float64)
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -497,8 +503,14 @@ class ParticleFilter:
                 else:
                     poses = propose(poses, int(round(share * n_out)), self.tables, meas,
                                     cfg.proposal_candidates, self.rng)
+        track, scatter, report = self._refine(estimate, meas, echo, speed_m_s,
+                                              yaw_rate_rad_s, dt_s)
+        if track is not None and report:
+            estimate = dataclasses.replace(estimate, pose=track[0].copy(), cov=track[1].copy(),
+                                           refined=True)
         self.poses, self.log_w = poses, log_w
         self.log_w_slow, self.log_w_fast = slow, fast
+        self.track, self.scatter = track, scatter
         self.n_steps += 1
         self.misfits = misfits
         self.anchored = anchored
@@ -509,6 +521,37 @@ class ParticleFilter:
             self.converged = estimate.converged and misfits == 0
             self.fresh = self.fresh and not (echo and meas.n_peaks)
         return estimate
+
+    def _refine(self, estimate: PoseEstimate, meas: Measurement | None, echo: bool,
+                speed_m_s: float, yaw_rate_rad_s: float, dt_s: float
+                ) -> tuple[tuple[FloatArray, FloatArray] | None, refine.Scatter, bool]:
+        """The Gaussian refinement of a converged mode (:mod:`localization.refine`): carried
+        by the odometry, restarted from the particles' mode when the two disagree, updated
+        with the block. Returns the Gaussian to keep (None when the status is not
+        ``converged`` or the model is not the echo model), the residuals kept and whether
+        the Gaussian is reported for this block (not when it could not explain the block:
+        the particles' mode is reported, the Gaussian kept as predicted)."""
+        rc = self.config.refine
+        if not (rc.enabled and echo and estimate.status == "converged"):
+            return None, self.scatter, False
+        track = self.track
+        if track is not None:
+            track = refine.predict(track[0], track[1], speed_m_s, yaw_rate_rad_s, dt_s,
+                                   self.config.motion)
+            if refine.mahalanobis(track[0], track[1], estimate.pose,
+                                  estimate.cov) > rc.reset_mahalanobis:
+                track = None
+        if track is None:
+            track = (estimate.pose.copy(), estimate.cov.copy())
+        if meas is None or not meas.n_peaks:
+            return track, self.scatter, True
+        sigma_r, sigma_c = refine.noise(self.tables, meas, self.scatter, rc)
+        out = refine.update(self.tables, meas, track[0], track[1], sigma_r, sigma_c, rc)
+        if not out.ok:
+            return track, self.scatter, False
+        return ((out.mean, out.cov),
+                self.scatter.add(out.range_residuals_m, out.cos_residuals, rc.scatter_memory),
+                True)
 
     # -- checkpointing
     def state_dict(self) -> dict[str, NDArray[Any]]:
@@ -529,6 +572,11 @@ class ParticleFilter:
             "twin_gap": np.asarray(self.twin_gap, dtype=np.float64).copy(),
             "rival_poses": self.rivals.poses.copy(),
             "rival_gap": self.rivals.gap.copy(),
+            "track_mean": (np.full(3, np.nan) if self.track is None else self.track[0].copy()),
+            "track_cov": (np.full((3, 3), np.nan) if self.track is None
+                          else self.track[1].copy()),
+            "scatter_range_m": self.scatter.range_m.copy(),
+            "scatter_cos": self.scatter.cos.copy(),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -568,6 +616,18 @@ class ParticleFilter:
             if rp.shape[0] != rg.shape[0]:
                 raise ValueError("state 'rival_poses' (k, 3) and 'rival_gap' (k,) must agree")
             pf.rivals = Rivals(rp, rg)
+        pf.track, pf.scatter = None, refine.Scatter.none()
+        if "track_mean" in state and "track_cov" in state:
+            tm = np.array(state["track_mean"], dtype=np.float64).reshape(-1)
+            tc = np.array(state["track_cov"], dtype=np.float64)
+            if tm.shape != (3,) or tc.shape != (3, 3):
+                raise ValueError("state 'track_mean' must be (3,) and 'track_cov' (3, 3)")
+            if np.all(np.isfinite(tm)) and np.all(np.isfinite(tc)):
+                pf.track = (tm, tc)
+        if "scatter_range_m" in state and "scatter_cos" in state:
+            pf.scatter = refine.Scatter(
+                np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),
+                np.array(state["scatter_cos"], dtype=np.float64).reshape(-1))
         return pf
 
 

@@ -16,7 +16,8 @@ Entry points: `SensorConfig`; `build_tables` (`SensorTables`: lookup tables of o
 `free_space_mask`; `prepare_measurement` (`Measurement`: a heat map checked and reduced to its
 strongest entries), `validate_block`, `validate_heatmap`, `uses_direction`; scoring
 `score_poses`, `score_cells_all_headings` (every heading at once by FFT), `log_likelihood`,
-`pose_log_likelihood`, `polar_prediction`.
+`pose_log_likelihood`, `polar_prediction`; `predicted_echoes` (the echo model's forward
+prediction at poses, used by the refinement).
 
 Notes
 -----
@@ -39,6 +40,7 @@ from localization.sensor._echo import (
     echo_proposals,
     explanation,
     map_range_sigma,
+    predicted_echoes,
 )
 from localization.sensor._measurement import (
     Measurement,
@@ -76,6 +78,7 @@ __all__ = [
     "end_weights",
     "explanation",
     "map_range_sigma",
+    "predicted_echoes",
     "soft_end_walls",
     "Measurement",
     "Model",

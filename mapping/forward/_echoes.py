@@ -23,7 +23,7 @@ from mapping.forward._kernels import (
     _Corners,
     _Limits,
     _Out,
-    _single_echoes,
+    _serial_echoes,
     _Walls,
 )
 from mapping.signal import SonarConfig, checked_speed_m_s
@@ -309,15 +309,15 @@ def _corners_of(segments: bytes, shape: tuple[int, ...], tol_deg: float,
 
 
 def _run(walls: WallSet, poses: FloatArray, lim: _Limits, params: ForwardParams,
-         single: bool) -> _Out:
+         parallel: bool) -> _Out:
     n = poses.shape[0]
     cap = _capacity(walls.n, lim.max_order)
     corners = _kernel_corners(walls, lim, params)
     while True:
         out = _empty_out(n, cap, lim.max_order)
         if walls.n and n:
-            if single:
-                _single_echoes(_kernel_walls(walls), lim, corners, poses[0], out)
+            if not parallel:
+                _serial_echoes(_kernel_walls(walls), lim, corners, poses, out)
             else:
                 _batch_echoes(_kernel_walls(walls), lim, corners, poses, out)
         most = int(out.n_found.max()) if n else 0
@@ -381,7 +381,7 @@ def echoes(
     p = np.asarray(pose, dtype=np.float64)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise ValueError(f"pose must be 3 finite numbers (x, y, heading), got {pose!r}")
-    batch = _to_batch(_run(walls, p[None].copy(), lim, params, single=True), params.spreading)
+    batch = _to_batch(_run(walls, p[None].copy(), lim, params, parallel=False), params.spreading)
     return batch.echoes_of(0)
 
 
@@ -391,6 +391,7 @@ def echoes_batch(
     speed_m_s: float,
     config: SonarConfig,
     params: ForwardParams = DEFAULT_PARAMS,
+    parallel: bool = True,
 ) -> EchoBatch:
     """Echoes of many poses in one call (numba, parallel over poses): see :func:`echoes`.
 
@@ -398,6 +399,9 @@ def echoes_batch(
     ----------
     poses : array_like, shape (n, 3)
         ``x, y, heading`` of each pose (e.g. particles), all at the same speed.
+    parallel : bool
+        Spread the poses over numba's threads (False: one thread, for a few poses, where
+        starting the parallel region costs more than the work; same results).
 
     Returns
     -------
@@ -409,7 +413,7 @@ def echoes_batch(
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise ValueError(f"poses must be finite with shape (n, 3), got shape {p.shape}")
-    out = _run(walls, np.ascontiguousarray(p), lim, params, single=False)
+    out = _run(walls, np.ascontiguousarray(p), lim, params, parallel=parallel)
     return _to_batch(out, params.spreading)
 
 

@@ -393,11 +393,13 @@ def _batch_echoes(walls: _Walls, lim: _Limits, corners: _Corners, poses: np.ndar
 
 
 @numba.njit(**NUMBA_FLAGS)
-def _single_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarray,
+def _serial_echoes(walls: _Walls, lim: _Limits, corners: _Corners, poses: np.ndarray,
                    out: _Out) -> None:
-    """Echoes of a single pose into row 0 of ``out`` (serial: no thread start-up)."""
+    """Echoes of every pose, serially (no thread start-up: one pose, or the few poses of a
+    finite-difference Jacobian, where starting a parallel region costs more than the work)."""
     keys = np.empty((out.path_m.shape[1], 6))
-    _pose_echoes(walls, lim, corners, pose, out, 0, keys)
+    for i in range(poses.shape[0]):
+        _pose_echoes(walls, lim, corners, poses[i], out, i, keys)
 
 
 # ---- rendering ------------------------------------------------------------------------------

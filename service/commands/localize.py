@@ -138,7 +138,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
 TRACK_CSV_COLUMNS = (
     "block", "x_m", "y_m", "yaw_rad", "std_x_m", "std_y_m", "std_yaw_rad", "ess", "converged",
     "n_modes", "direction_observable", "err_m", "err_rad",
-    "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "status",
+    "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "status", "refined",
 )
 """Columns of the ``localize --out`` track CSV (documented in docs/formats.md)."""
 
@@ -151,7 +151,7 @@ def _track_row(k: int, est: PoseEstimate, err: tuple[float, float]) -> list[Any]
     sd = np.sqrt(np.clip(np.diag(est.cov), 0.0, None))
     upper = est.cov[np.triu_indices(3)]          # xx, xy, xyaw, yy, yyaw, yawyaw
     return [k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
-            int(est.direction_observable), *err, *upper, track_status(est)]
+            int(est.direction_observable), *err, *upper, track_status(est), int(est.refined)]
 
 
 def _track_csv(rows: list[list[Any]]) -> str:

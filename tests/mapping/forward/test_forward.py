@@ -150,6 +150,9 @@ def test_batch_equals_single_and_required_order() -> None:
         assert np.allclose(got.range_m, one.range_m) and np.allclose(got.amplitude, one.amplitude)
     assert required_order(_walls((3.0, -9.0, 3.0, 9.0)), poses, 0.1, CFG) == 1
     assert required_order(walls, poses, 0.1, CFG) >= 3  # a closed rigid room rings
+    serial = echoes_batch(walls, poses, 0.1, CFG, ForwardParams(max_order=3), parallel=False)
+    for name in ("count", "range_m", "cos_doppler", "amplitude", "order", "walls", "points_m"):
+        np.testing.assert_array_equal(getattr(serial, name), getattr(batch, name), err_msg=name)
 
 
 # ---- kernel vs numpy twin -------------------------------------------------------------------
