@@ -217,7 +217,7 @@ def test_noise_is_the_robust_scale_of_kept_residuals_with_floors(tables: SensorT
 ])
 def test_settings_are_validated(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):
-        refine.RefineConfig(**{field: value})
+        refine.RefineConfig(**{field: value})  # type: ignore[arg-type]
 
 
 def test_mahalanobis_wraps_the_heading() -> None:
