@@ -375,6 +375,7 @@ class Trace:
     cpu_s: FloatArray
     feed: Feed
     modes: list[FloatArray]             # per block: the reported modes' means (m, 3)
+    refined: FloatArray | None = None   # per block: 1 when the refined Gaussian was reported
 
     @property
     def err(self) -> tuple[FloatArray, FloatArray]:
@@ -383,7 +384,7 @@ class Trace:
 
 def drive(pf: ParticleFilter, feed: Feed) -> Trace:
     """Step ``pf`` through ``feed``, timing each ``step``."""
-    poses, covs, status, fit, wall, cpu, modes = [], [], [], [], [], [], []
+    poses, covs, status, fit, wall, cpu, modes, refined = [], [], [], [], [], [], [], []
     for k in range(feed.n):
         t0, c0 = time.perf_counter(), time.process_time()
         est = pf.step(feed.hms[k], float(feed.v[k]), float(feed.w[k]), float(feed.dt[k]))
@@ -394,8 +395,9 @@ def drive(pf: ParticleFilter, feed: Feed) -> Trace:
         status.append(est.status)
         fit.append(est.fit)
         modes.append(np.array([m.mean for m in est.modes]).reshape(-1, 3))
+        refined.append(float(est.refined))
     return Trace(np.array(poses), np.array(covs), status, np.array(fit), np.array(wall),
-                 np.array(cpu), feed, modes)
+                 np.array(cpu), feed, modes, np.array(refined))
 
 
 def confidently_wrong(tr: Trace, images: Images) -> dict[str, Any]:
@@ -451,6 +453,7 @@ def tracking_trial(tables: SensorTables, feed: Feed, n: int, images: Images) -> 
         "track_metrics": dataclasses.asdict(m),
         "status": status_counts(tr.status),
         "fit_mean": float(np.nanmean(tr.fit)) if np.isfinite(tr.fit).any() else math.nan,
+        "refined_share": float(np.mean(tr.refined)) if tr.refined is not None else math.nan,
         "confidently_wrong": confidently_wrong(tr, images),
     }, tr
 
@@ -704,6 +707,10 @@ def summarize_variant(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "tracking_heading_rmse_deg": float(np.sqrt(np.mean([t["heading_rmse_deg"] ** 2
                                                             for t in tr]))),
         "tracking_nees_median_of_means": float(np.median([t["nees_mean"] for t in tr])),
+        "tracking_nees_runs_in_1_6": int(sum(1.0 <= t["nees_mean"] <= 6.0 for t in tr)),
+        "tracking_nees_runs_above_6": int(sum(t["nees_mean"] > 6.0 for t in tr)),
+        "tracking_refined_share": float(np.nanmean([t.get("refined_share", math.nan)
+                                                    for t in tr])),
         "tracking_lost_runs": int(sum(t["lost"] for t in tr)),
         "tracking_lost_runs_mod_sym": int(sum(t["lost_mod_sym"] for t in tr)),
         "tracking_share_truth_among_modes": float(np.mean([t["share_truth_among_modes"]
