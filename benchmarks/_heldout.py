@@ -5,7 +5,8 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
 
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
-                     "group": "held-out" | "fresh" | "fresh14" | "fresh14b"}, ...}
+                     "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"},
+     ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
 rounded corners), ``curve`` is :func:`mapping.path.curve_path` through them and ``loop`` the
@@ -13,8 +14,8 @@ closed curve. Every scene has one path named ``<scene>-curve``: the curved run t
 benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the benchmark:
 ``"fresh"`` marks scenes written after the wall fit was developed, so nobody looked at them
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
-tuned on, and ``"fresh14b"`` scenes written after the filter's rivals were fixed (nothing was
-run on them before they were committed). This loader lives here, not in ``mapping``, so the
+tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and ``"fresh14c"``
+after the Gaussian refinement (nothing was run on either before they were committed). This loader lives here, not in ``mapping``, so the
 package never reads files by path.
 """
 
@@ -34,7 +35,7 @@ from mapping.scene import Scene
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
-PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b")
+PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c")
 
 
 @dataclass(frozen=True)

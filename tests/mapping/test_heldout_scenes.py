@@ -23,6 +23,7 @@ FRESH14B_CLEARANCE_M = 0.50  # so were the fresh14b scenes' (pillar and shelf in
 FRESH = ("hexagon", "alcove", "z-corridor")  # written after the wall fit: group "fresh"
 FRESH14 = ("kitchen", "gable", "lobby")  # written for issue 14 (localization): group "fresh14"
 FRESH14B = ("studio", "ward", "chapel")  # written after the rivals: group "fresh14b"
+FRESH14C = ("workshop", "atrium")  # written after the refinement: group "fresh14c"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -50,6 +51,9 @@ INTERIOR = {
     "ward": [(0.0, 0.0), (10.0, 0.0), (10.0, 3.0), (0.0, 3.0)],
     "chapel": [(0.0, 0.8), (2.5, 0.0), (6.2, 0.4), (7.0, 2.6), (5.8, 5.0), (2.0, 5.3),
                (0.0, 3.5)],
+    "workshop": [(0.0, 0.0), (8.0, 0.0), (8.0, 5.0), (5.4, 5.0), (5.4, 5.012), (2.6, 5.012),
+                 (2.6, 5.0), (0.0, 5.0)],
+    "atrium": [(0.0, 0.0), (5.0, 0.0), (5.0, 4.75), (4.75, 5.0), (0.0, 5.0)],
 }
 
 
@@ -84,12 +88,13 @@ def test_the_four_scenes_of_issue_13_are_there() -> None:
 
 def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
-    assert set(FRESH14B) <= set(SCENES)
+    assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
                     else "fresh14" if spec.scene in FRESH14
-                    else "fresh14b" if spec.scene in FRESH14B else "held-out")
+                    else "fresh14b" if spec.scene in FRESH14B
+                    else "fresh14c" if spec.scene in FRESH14C else "held-out")
         assert spec.group == expected
 
 
@@ -134,6 +139,14 @@ def test_scene_parses_and_has_a_straight_and_a_curved_path(name: str) -> None:
     assert heldout_path(f"{name}-curve").kind in ("curve", "loop")  # the benchmark's run
 
 
+def test_workshop_panels_sit_12_mm_apart_and_atrium_is_square_but_for_a_chamfer() -> None:
+    walls = {w.name: w for w in heldout_scene("workshop").walls}
+    assert abs(walls["north panel middle"].start[1] - walls["north panel east"].start[1]
+               - 0.012) < 1e-9                       # below the 17 mm range resolution
+    atrium = heldout_scene("atrium")
+    assert sorted(round(w.length_m, 3) for w in atrium.walls) == [0.354, 4.75, 4.75, 5.0, 5.0]
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -148,8 +161,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
     spec = heldout_path(name)
     scene = heldout_scene(spec.scene)
     trajectory = spec.trajectory()
-    clearance = {"fresh": FRESH_CLEARANCE_M, "fresh14b": FRESH14B_CLEARANCE_M}.get(
-        spec.group, CLEARANCE_M)
+    clearance = {"fresh": FRESH_CLEARANCE_M, "fresh14b": FRESH14B_CLEARANCE_M,
+                 "fresh14c": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
