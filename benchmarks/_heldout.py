@@ -14,9 +14,10 @@ closed curve. Every scene has one path named ``<scene>-curve``: the curved run t
 benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the benchmark:
 ``"fresh"`` marks scenes written after the wall fit was developed, so nobody looked at them
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
-tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and ``"fresh14c"``
-after the Gaussian refinement (nothing was run on either before they were committed). This loader lives here, not in ``mapping``, so the
-package never reads files by path.
+tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
+``"fresh14c"`` after the Gaussian refinement (nothing was run on either before they were
+committed). This loader lives here, not in ``mapping``, so the package never reads files by
+path.
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from localization import posterior as post
+from localization.estimate import nees
 from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.sensor import SensorConfig, SensorTables, build_tables
 from mapping.heatmap import heatmap_of_run
@@ -152,7 +153,12 @@ def pf_calibration(run: Run, tables: SensorTables, res: post.PosteriorResult,
             "posterior_sd": np.round(np.sqrt(np.diag(res.modes[cal.mode].cov)), 4).tolist(),
             "covariance_ratio_eigs": np.round(cal.covariance_ratio, 3).tolist(),
             "nees_truth_pf": cal.nees_truth, "nees_truth_posterior": cal.nees_truth_posterior,
-            "kl_posterior_to_pf": cal.kl_posterior_to_cloud}
+            "kl_posterior_to_pf": cal.kl_posterior_to_cloud,
+            # what the filter reports: the refined Gaussian of its converged mode
+            # (localization.refine), its own noise measured from the residuals
+            "reported_refined": bool(est.refined),
+            "reported_sd": np.round(np.sqrt(np.diag(est.cov)), 5).tolist(),
+            "nees_truth_reported": nees(est.pose, est.cov, truth)}
 
 
 def main(argv: list[str] | None = None) -> None:
