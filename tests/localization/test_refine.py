@@ -278,3 +278,28 @@ def test_checkpoint_keeps_the_refined_track(tables: SensorTables) -> None:
     np.testing.assert_array_equal(a.cov, b.cov)
     old = {k: v for k, v in pf.state_dict().items() if not k.startswith(("track", "scatter"))}
     assert ParticleFilter.from_state_dict(old, tables).track is None
+
+
+def test_noise_block_and_kidnap_drop_the_refined_track(tables: SensorTables) -> None:
+    """At the edges the filter reports the particles, not a Gaussian that cannot explain the
+    block: a block of pure noise (no peak: `uncertain`) and the blocks after a kidnap (the
+    echoes of a pose 1.5 m away)."""
+    from mapping.heatmap import doppler_heatmap
+
+    pf, ests, truth = _run(tables, FilterConfig(n_particles=500))
+    assert ests[-1].refined and pf.track is not None
+    noise = doppler_heatmap(np.random.default_rng(1).standard_normal(SONAR.block_samples),
+                            SPEED, SONAR)
+    est = pf.step(noise, SPEED, 0.0, DT)
+    assert est.status != "converged" and not est.refined and pf.track is None
+    # back on the echoes, then carried 1.5 m away: never a refined estimate far from the truth
+    pf, ests, truth = _run(tables, FilterConfig(n_particles=500), seed=1)
+    away = np.array([3.2, 0.8, math.pi / 2])
+    for k in range(4):
+        pose = motion.predict_mean(away, SPEED, 0.0, k * DT)
+        est = pf.step(predicted_heatmap(WallSet.from_array(WALLS), pose, SPEED, SONAR),
+                      SPEED, 0.0, DT)
+        if k == 0:
+            assert est.status != "converged" and not est.refined and pf.track is None
+        if est.refined:
+            assert math.hypot(*(est.pose[:2] - pose[:2])) < 0.3
