@@ -351,7 +351,6 @@ def update(tables: SensorTables, measurement: Measurement, mean: FloatArray, cov
                                    reason=f"innovation {nis:.1f} > {config.max_nis:g}")
     walls0 = keys[ei]
     z_r, z_c = peaks.r[pi], peaks.c[pi]
-    blend_r, blend_c = unresolved_variance(r0, c0, resolution_m(tables))
     R_r = sigma_r_m**2 + s0[ei] ** 2 + blend_r[ei]
     R_c = sigma_c**2 + blend_c[ei]
     info0 = np.linalg.inv(P0)
