@@ -165,12 +165,14 @@ def score_range(ring: NDArray[np.float32], cell: NDArray[np.int64],
 
 
 class _EchoPeaks(NamedTuple):
-    """The measured echo peaks of one block: range (m), Doppler cosine and weight of each,
+    """The measured echo peaks of one block: range (m), Doppler cosine, weight and level of
+    each (``la``: natural log of the peak's heat-map value relative to the block's strongest),
     and the kernel widths (``sig_r`` m, ``sig_c`` cosine; ``use_cos`` False: range only)."""
 
     r: NDArray[np.float64]
     c: NDArray[np.float64]
     w: NDArray[np.float64]
+    la: NDArray[np.float64]
     sig_r: float
     sig_c: float
     use_cos: bool
@@ -180,7 +182,8 @@ class _EchoTerms(NamedTuple):
     """The echo model's constants: clutter share ``eps`` of a measured peak no predicted echo
     explains, detection probability ``p_max`` of a predicted echo at full relative level
     (ramping from 0 at ``rel_lo`` to ``p_max`` at ``rel_hi`` of the pose's strongest echo),
-    and the range window ``[r_min, r_max]`` in which peaks are read."""
+    the range window ``[r_min, r_max]`` in which peaks are read, and the log-level tolerance
+    ``sig_a`` of a matched peak (0: levels not compared)."""
 
     eps: float
     p_max: float
@@ -188,44 +191,90 @@ class _EchoTerms(NamedTuple):
     rel_hi: float
     r_min: float
     r_max: float
+    sig_a: float = 0.0
 
 
 @numba.njit(**NUMBA_FLAGS)
 def _echo_kernel(
     count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
-    pa: NDArray[np.float64], ps: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
-    out: NDArray[np.float64],
+    pa: NDArray[np.float64], ps: NDArray[np.float64], pl: NDArray[np.float64],
+    m: _EchoPeaks, t: _EchoTerms, out: NDArray[np.float64],
 ) -> None:
     """Echo log-likelihood of each pose, and how much each pose explains.
 
-    Pose i predicts ``count[i]`` echoes (range ``pr``, Doppler cosine ``pc``, amplitude
-    ``pa``, the map's range uncertainty ``ps`` in m); the block measured peaks ``m``. With
-    ``kappa_jk = exp(-(dr/s_k)^2/2 - (dc/sig_c)^2/2)``, ``s_k = sqrt(sig_r^2 + ps_k^2)``
-    (the cosine term only when ``m.use_cos``):
+    Pose i predicts ``count[i]`` echoes (range ``pr``, Doppler cosine ``pc``, detection
+    level ``pa``, the map's range uncertainty ``ps`` in m, amplitude ``pl`` once heard); the
+    block measured peaks ``m``. With ``kappa_jk = exp(-(dr/s_k)^2/2 - (dc/sig_c)^2/2)``,
+    ``s_k = sqrt(sig_r^2 + ps_k^2)`` (the cosine term only when ``m.use_cos``):
 
-        ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk)           measured peaks
-           + sum_k log(1 - p_k (1 - max_j kappa_jk))                  predicted echoes
+        ll = sum_j w_j log(eps + (1 - eps) alpha_j max_k kappa_jk)    measured peaks
+           + sum_k log(1 - p_k (1 - max_j alpha_j kappa_jk))          predicted echoes
 
     ``p_k`` the detection probability of echo k from its level relative to the pose's
-    strongest echo in the window. ``out[i] = (ll, explained, heard)``: the weighted share of
-    measured peaks explained (``sum w_j max_k kappa / sum w_j``) and the detection-weighted
-    share of predicted echoes heard (``sum p_k max_j kappa / sum p_k``; 1 when none is
-    expected).
+    strongest echo in the window. ``alpha_j`` compares peak j's level with the echoes that
+    make it: ``L_j = sum_k kappa_jk pl_k`` (echoes closer than the resolution add up), the
+    pose's gain ``g`` the mean of ``la_j - log L_j`` weighted ``w_j max_k kappa_jk``, and
+    ``alpha_j = exp(-((la_j - log L_j - g) / sig_a)^2 / 2)`` where ``L_j > 0``; 1 where not,
+    with fewer than two peaks or ``t.sig_a = 0``. ``out[i] = (ll, explained, heard)``: the
+    weighted share of measured peaks explained (``sum w_j max_k kappa / sum w_j``) and the
+    detection-weighted share of predicted echoes heard (``sum p_k max_j kappa / sum p_k``; 1
+    when none is expected), both geometric (range and cosine, never the level).
     """
     n_meas = m.r.shape[0]
     best = np.empty(n_meas)
+    level = np.empty(n_meas)
+    alpha = np.empty(n_meas)
+    kap = np.zeros((n_meas, pr.shape[1]))
     w_sum = 0.0
     for j in range(n_meas):
         w_sum += m.w[j]
     log_eps = math.log(t.eps)
+    levels = t.sig_a > 0.0 and n_meas >= 2
     for i in range(count.shape[0]):
         n_pred = count[i]
-        for j in range(n_meas):
-            best[j] = 0.0
         a_max = 0.0
         for k in range(n_pred):
             if t.r_min <= pr[i, k] <= t.r_max and pa[i, k] > a_max:
                 a_max = pa[i, k]
+        for j in range(n_meas):
+            best[j] = 0.0
+            level[j] = 0.0
+            alpha[j] = 1.0
+        # geometry: every (peak, echo) pair once
+        for k in range(n_pred):
+            r = pr[i, k]
+            inside = t.r_min <= r <= t.r_max
+            s_k = math.sqrt(m.sig_r * m.sig_r + ps[i, k] * ps[i, k])
+            for j in range(n_meas):
+                kv = 0.0
+                if inside:
+                    d = (m.r[j] - r) / s_k
+                    e = 0.5 * d * d
+                    if m.use_cos:
+                        dc = (m.c[j] - pc[i, k]) / m.sig_c
+                        e += 0.5 * dc * dc
+                    if e < 18.0:
+                        kv = math.exp(-e)
+                kap[j, k] = kv
+                if kv > best[j]:
+                    best[j] = kv
+                if pl[i, k] > 0.0:
+                    level[j] += kv * pl[i, k]
+        # levels: each peak against the echoes that make it, after the pose's gain
+        if levels:
+            g_sum = 0.0
+            g_w = 0.0
+            for j in range(n_meas):
+                if level[j] > 0.0:
+                    wj = m.w[j] * best[j]
+                    g_sum += wj * (m.la[j] - math.log(level[j]))
+                    g_w += wj
+            if g_w > 0.0:
+                gain = g_sum / g_w
+                for j in range(n_meas):
+                    if level[j] > 0.0:
+                        da = (m.la[j] - math.log(level[j]) - gain) / t.sig_a
+                        alpha[j] = math.exp(-0.5 * da * da)
         ll = 0.0
         p_sum = 0.0
         heard = 0.0
@@ -234,28 +283,22 @@ def _echo_kernel(
             if r < t.r_min or r > t.r_max:
                 continue
             bk = 0.0
-            s_k = math.sqrt(m.sig_r * m.sig_r + ps[i, k] * ps[i, k])
+            bk_a = 0.0
             for j in range(n_meas):
-                d = (m.r[j] - r) / s_k
-                e = 0.5 * d * d
-                if m.use_cos:
-                    dc = (m.c[j] - pc[i, k]) / m.sig_c
-                    e += 0.5 * dc * dc
-                if e < 18.0:
-                    kv = math.exp(-e)
-                    if kv > bk:
-                        bk = kv
-                    if kv > best[j]:
-                        best[j] = kv
+                kv = kap[j, k]
+                if kv > bk:
+                    bk = kv
+                if alpha[j] * kv > bk_a:
+                    bk_a = alpha[j] * kv
             rel = pa[i, k] / a_max if a_max > 0.0 else 0.0
             p = t.p_max * min(max((rel - t.rel_lo) / (t.rel_hi - t.rel_lo), 0.0), 1.0)
-            ll += math.log(1.0 - p * (1.0 - bk))
+            ll += math.log(1.0 - p * (1.0 - bk_a))
             p_sum += p
             heard += p * bk
         explained = 0.0
         for j in range(n_meas):
-            ll += m.w[j] * (math.log(t.eps + (1.0 - t.eps) * best[j]) if best[j] > 0.0
-                            else log_eps)
+            b = alpha[j] * best[j]
+            ll += m.w[j] * (math.log(t.eps + (1.0 - t.eps) * b) if b > 0.0 else log_eps)
             explained += m.w[j] * best[j]
         out[i, 0] = ll
         out[i, 1] = explained / w_sum if w_sum > 0.0 else 1.0
@@ -264,16 +307,20 @@ def _echo_kernel(
 
 def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
                pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
-               map_sigma: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+               map_sigma: NDArray[np.float64] | None = None,
+               amplitude: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0;
-    ``map_sigma`` None: no map uncertainty)."""
+    ``map_sigma`` None: no map uncertainty; ``amplitude`` None: ``pa`` is also the heard
+    echo's amplitude)."""
     out = np.empty((count.shape[0], 3), dtype=np.float64)
     ps = np.zeros_like(pr) if map_sigma is None else map_sigma
+    pl = pa if amplitude is None else amplitude
     _echo_kernel(np.ascontiguousarray(count, dtype=np.int64),
                  np.ascontiguousarray(np.nan_to_num(pr), dtype=np.float64),
                  np.ascontiguousarray(np.nan_to_num(pc), dtype=np.float64),
                  np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(ps), dtype=np.float64), m, t, out)
+                 np.ascontiguousarray(np.nan_to_num(ps), dtype=np.float64),
+                 np.ascontiguousarray(np.nan_to_num(pl), dtype=np.float64), m, t, out)
     return out
 
 

@@ -171,6 +171,16 @@ def _bin_ranges(H: FloatArray, ranges_m: FloatArray, config: SensorConfig) -> Fl
     return np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
 
 
+def _log_levels(value: FloatArray) -> FloatArray:
+    """Natural log of each peak's heat-map value relative to the strongest (0 for a value
+    that is not positive)."""
+    v = np.asarray(value, dtype=np.float64)
+    top = float(v.max(initial=0.0))
+    if top <= 0.0:
+        return np.zeros_like(v)
+    return np.ascontiguousarray(np.log(np.maximum(v, 1e-12 * top) / top))
+
+
 def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool) -> Measurement:
     """The echo model's measurement: the block's strongest heat-map peaks
     (:func:`mapping.walls.heatmap_peaks`), each with unit weight, and the kernel widths.
@@ -201,7 +211,8 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
                    value=pk.value[keep], noise=pk.noise)
     peaks = _EchoPeaks(r=np.ascontiguousarray(pk.range_m, dtype=np.float64),
                        c=np.ascontiguousarray(np.cos(pk.angle_rad), dtype=np.float64),
-                       w=np.ones(pk.range_m.shape[0]), sig_r=float(config.range_sigma_m),
+                       w=np.ones(pk.range_m.shape[0]), la=_log_levels(pk.value),
+                       sig_r=float(config.range_sigma_m),
                        sig_c=float(config.cos_sigma_min),   # widened by the scorer
 
                        use_cos=bool(directional))

@@ -10,6 +10,8 @@ in its docstring.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -88,42 +90,64 @@ def score_poses_numpy(tables: SensorTables, measurement: Measurement,
 
 def naive_echo(count: NDArray[np.int64], pr: FloatArray, pc: FloatArray, pa: FloatArray,
                peaks: _EchoPeaks, terms: _EchoTerms,
-               map_sigma: FloatArray | None = None) -> FloatArray:
+               map_sigma: FloatArray | None = None,
+               amplitude: FloatArray | None = None) -> FloatArray:
     """Twin of the echo kernel ``score_echo``: (n, 3) of (ll, explained, heard) per pose.
 
     Straight from the kernel's docstring, one pose at a time with dense (peak, echo) arrays:
     ``kappa_jk = exp(-(dr/s_k)^2/2 - (dc/sig_c)^2/2)``, ``s_k^2 = sig_r^2 + map_sigma_k^2``
     (range only without ``use_cos``) over the predicted echoes in ``[r_min, r_max]``;
-    ``ll = sum_j w_j log(eps + (1 - eps) max_k kappa_jk) + sum_k log(1 - p_k (1 - max_j
-    kappa_jk))`` with ``p_k = p_max clip((a_k / a_max - rel_lo) / (rel_hi - rel_lo), 0, 1)``
+    ``ll = sum_j w_j log(eps + (1 - eps) max_k kappa'_jk) + sum_k log(1 - p_k (1 - max_j
+    kappa'_jk))`` with ``p_k = p_max clip((a_k / a_max - rel_lo) / (rel_hi - rel_lo), 0, 1)``
     (``a_max`` the pose's strongest echo in the window, ``p_k = 0`` if none is positive);
+    ``kappa'_jk = alpha_j kappa_jk``: ``alpha_j = 1`` unless levels are compared (``sig_a >
+    0``, two or more peaks): peak j's predicted level ``L_j = sum_k kappa_jk l_k`` over the
+    echoes with a positive amplitude ``l_k``, the gain ``g`` the mean of ``la_j - log L_j``
+    over the peaks with ``L_j > 0`` weighted ``w_j max_k kappa_jk``, and there ``alpha_j =
+    exp(-((la_j - log L_j - g) / sig_a)^2 / 2)``; ``L_j`` adds only the pairs the kernel
+    keeps (``kappa >= exp(-18)``).
     explained ``sum w_j max_k kappa / sum w_j`` (1 without weight), heard ``sum p_k max_j
-    kappa / sum p_k`` (1 when nothing is expected). Row i reads only its first ``count[i]``
-    entries (the rest is padding). No cut-off: the kernel skips pairs with ``kappa <
-    exp(-18)``, which the caller allows for in its tolerance.
+    kappa / sum p_k`` (1 when nothing is expected), both from kappa. Row i reads only its
+    first ``count[i]`` entries (the rest is padding). No cut-off: the kernel skips pairs with
+    ``kappa < exp(-18)``, which the caller allows for in its tolerance.
     """
     w = np.asarray(peaks.w, dtype=np.float64)
+    la = np.asarray(peaks.la, dtype=np.float64)
+    amp = pa if amplitude is None else amplitude
     out = np.empty((count.shape[0], 3))
     for i in range(count.shape[0]):
         k = int(count[i])
-        r, c, a = pr[i, :k], pc[i, :k], pa[i, :k]
+        r, c, a, lv = pr[i, :k], pc[i, :k], pa[i, :k], amp[i, :k]
         ms = np.zeros(k) if map_sigma is None else map_sigma[i, :k]
         inside = (r >= terms.r_min) & (r <= terms.r_max)
-        r, c, a, ms = r[inside], c[inside], a[inside], ms[inside]
+        r, c, a, lv, ms = r[inside], c[inside], a[inside], lv[inside], ms[inside]
         s_k = np.sqrt(peaks.sig_r**2 + ms**2)
         e = 0.5 * ((peaks.r[:, None] - r[None, :]) / s_k[None, :]) ** 2
         if peaks.use_cos:
             e = e + 0.5 * ((peaks.c[:, None] - c[None, :]) / peaks.sig_c) ** 2
         kappa = np.exp(-e)                                   # (n_meas, n_pred)
-        best_meas = kappa.max(axis=1, initial=0.0)
-        best_pred = kappa.max(axis=0, initial=0.0)
         a_max = float(a.max(initial=0.0))
         rel = a / a_max if a_max > 0.0 else np.zeros_like(a)
         p = terms.p_max * np.clip((rel - terms.rel_lo) / (terms.rel_hi - terms.rel_lo), 0.0, 1.0)
+        explained = (float(np.sum(w * kappa.max(axis=1, initial=0.0)) / w.sum())
+                     if w.sum() > 0.0 else 1.0)
+        heard = (float(np.sum(p * kappa.max(axis=0, initial=0.0)) / p.sum())
+                 if p.sum() > 0.0 else 1.0)
+        alpha = np.ones(la.size)
+        if terms.sig_a > 0 and la.size >= 2:
+            # the level adds the pairs the kernel keeps (kappa >= exp(-18)), so a peak with
+            # no such pair has none (a vanishing kappa must not set the gain)
+            lev = np.where(kappa >= math.exp(-18.0), kappa, 0.0) @ np.where(lv > 0, lv, 0.0)
+            use = lev > 0
+            wt = w[use] * kappa.max(axis=1, initial=0.0)[use]
+            if wt.sum() > 0:
+                g = float(np.sum(wt * (la[use] - np.log(lev[use]))) / wt.sum())
+                alpha[use] = np.exp(-0.5 * ((la[use] - np.log(lev[use]) - g) / terms.sig_a) ** 2)
+        kappa_l = alpha[:, None] * kappa
+        best_meas = kappa_l.max(axis=1, initial=0.0)
+        best_pred = kappa_l.max(axis=0, initial=0.0)
         ll = (np.sum(w * np.log(terms.eps + (1.0 - terms.eps) * best_meas))
               + np.sum(np.log(1.0 - p * (1.0 - best_pred))))
-        explained = float(np.sum(w * best_meas) / w.sum()) if w.sum() > 0.0 else 1.0
-        heard = float(np.sum(p * best_pred) / p.sum()) if p.sum() > 0.0 else 1.0
         out[i] = (ll, explained, heard)
     return out
 

@@ -103,11 +103,13 @@ def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool
     meas_c = rng.uniform(-1.0, 1.0, n_meas)
     w = np.where(rng.random(n_meas) < 0.2, 0.0, rng.uniform(0.0, 2.0, n_meas))
     sig_r, sig_c = float(rng.uniform(0.005, 0.1)), float(rng.uniform(0.01, 1.0))
-    peaks = _EchoPeaks(r=meas_r, c=meas_c, w=w, sig_r=sig_r, sig_c=sig_c, use_cos=use_cos)
+    la = np.minimum(rng.normal(-1.0, 1.0, n_meas), 0.0)
+    peaks = _EchoPeaks(r=meas_r, c=meas_c, w=w, la=la, sig_r=sig_r, sig_c=sig_c,
+                       use_cos=use_cos)
     lo = float(rng.uniform(0.0, 0.5))
     terms = _EchoTerms(eps=float(rng.uniform(0.01, 0.5)), p_max=float(rng.uniform(0.0, 0.95)),
                        rel_lo=lo, rel_hi=float(rng.uniform(lo + 0.01, 1.0)), r_min=0.15,
-                       r_max=5.0)
+                       r_max=5.0, sig_a=float(rng.choice([0.0, rng.uniform(0.1, 2.0)])))
     count = rng.integers(0, kmax + 1, size=n)
     pr = rng.uniform(0.0, 6.0, (n, kmax))
     pc = rng.uniform(-1.0, 1.0, (n, kmax))
@@ -124,14 +126,16 @@ def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool
 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_meas=st.integers(0, 7), kmax=st.integers(0, 7),
-       use_cos=st.booleans(), with_map_sigma=st.booleans())
-def test_echo_kernel_matches_naive_twin(seed: int, n_meas: int, kmax: int,
-                                        use_cos: bool, with_map_sigma: bool) -> None:
+       use_cos=st.booleans(), with_map_sigma=st.booleans(), with_amplitude=st.booleans())
+def test_echo_kernel_matches_naive_twin(seed: int, n_meas: int, kmax: int, use_cos: bool,
+                                        with_map_sigma: bool, with_amplitude: bool) -> None:
     count, pr, pc, pa, peaks, terms = _random_case(seed, n_meas, kmax, use_cos)
     ms = (np.random.default_rng(seed + 1).uniform(0.0, 0.05, pr.shape) if with_map_sigma
           else None)
-    got = score_echo(count, pr, pc, pa, peaks, terms, ms)
-    want = naive_echo(count, pr, pc, pa, peaks, terms, ms)
+    amp = (np.where(np.isnan(pa), np.nan, np.random.default_rng(seed + 2).uniform(
+        -0.2, 1.0, pr.shape)) if with_amplitude else None)
+    got = score_echo(count, pr, pc, pa, peaks, terms, ms, amp)
+    want = naive_echo(count, pr, pc, pa, peaks, terms, ms, amp)
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got[:, 0], want[:, 0], rtol=0,
                                atol=_tolerance(peaks, terms, kmax))
@@ -143,10 +147,10 @@ def test_echo_kernel_edge_cases() -> None:
     """No measured peak: everything is explained (1), the expected echoes are all missed.
     No predicted echo: every peak is clutter, nothing was expected (heard 1). Both: 0, 1, 1."""
     terms = _EchoTerms(eps=0.05, p_max=0.9, rel_lo=0.1, rel_hi=0.4, r_min=0.15, r_max=5.0)
-    none = _EchoPeaks(r=np.zeros(0), c=np.zeros(0), w=np.zeros(0), sig_r=0.02, sig_c=0.05,
-                      use_cos=True)
+    none = _EchoPeaks(r=np.zeros(0), c=np.zeros(0), w=np.zeros(0), la=np.zeros(0), sig_r=0.02,
+                      sig_c=0.05, use_cos=True)
     two = _EchoPeaks(r=np.array([1.0, 2.0]), c=np.array([0.5, -0.5]), w=np.array([1.0, 2.0]),
-                     sig_r=0.02, sig_c=0.05, use_cos=True)
+                     la=np.zeros(2), sig_r=0.02, sig_c=0.05, use_cos=True)
     # pose 0: echoes at full and quarter level (detection 0.9 and 0.45), and one outside the
     # range window (ignored, though the strongest); pose 1: no echo
     count = np.array([3, 0])
@@ -180,7 +184,9 @@ def test_explanation_matches_twin_on_forward_model_echoes(asym: SensorTables) ->
     assert m.peaks is not None and np.isnan(b.range_m).any()      # padding is exercised
     peaks = m.peaks._replace(sig_c=cos_sigma(asym, m))
     terms = _EchoTerms(eps=cfg.clutter, p_max=cfg.p_detect, rel_lo=cfg.detect_lo,
-                       rel_hi=cfg.detect_hi, r_min=cfg.min_range_m, r_max=cfg.max_range_m)
+                       rel_hi=cfg.detect_hi, r_min=cfg.min_range_m, r_max=cfg.max_range_m,
+                       sig_a=cfg.amplitude_sigma)
+    assert terms.sig_a > 0 and m.peaks.la.size >= 2       # levels are compared
     want = naive_echo(b.count, b.range_m, b.cos_doppler, b.amplitude, peaks, terms)
     np.testing.assert_allclose(ex.log_likelihood, want[:, 0],
                                atol=_tolerance(peaks, terms, b.range_m.shape[1]))
@@ -274,6 +280,30 @@ def test_mirror_pose_scores_alike_only_in_a_mirror_symmetric_scene(
             assert abs(ex.explained[0] - ex.explained[1]) < 1e-9
         else:
             assert ll[0] > ll[1] + 3.0
+
+
+#: The corridor with an absorbing north wall (R = 0.4): geometrically still mirror symmetric.
+ABSORBING_NORTH = np.array([1.0, 0.4, 1.0])
+
+
+@pytest.mark.parametrize("pose", [(2.0, 0.7, 0.3), (3.0, 0.6, 0.4), (1.5, 0.8, -0.2),
+                                  (5.0, 1.4, 0.1)])
+def test_levels_tell_an_absorbing_wall_from_its_mirror(pose: tuple[float, float, float]) -> None:
+    """Ranges and Doppler cosines cannot tell a pose from its mirror in a corridor whose walls
+    are symmetric but one of which absorbs (R = 0.4): the levels can. Comparing each peak's
+    level with its echoes' (after the block's common gain) puts the truth >= 3 nats above
+    the mirror, where without levels the two lie within 1.6 nats (and either way round)."""
+    truth = np.array(pose)
+    hm = predicted_heatmap(WallSet.from_array(CORRIDOR, ABSORBING_NORTH), truth, 0.2, SONAR)
+    gaps = {}
+    for sigma in (0.0, SensorConfig().amplitude_sigma):
+        cfg = SensorConfig(model="echo", amplitude_sigma=sigma)
+        tables = build_tables(wallmap_from_walls(CORRIDOR, ABSORBING_NORTH), cfg)
+        ll = explanation(tables, prepare_measurement(hm, cfg),
+                         np.stack([truth, _mirror(truth)])).log_likelihood
+        gaps[sigma] = float(ll[0] - ll[1])
+    assert abs(gaps[0.0]) < 1.6
+    assert gaps[SensorConfig().amplitude_sigma] > 3.0
 
 
 # ---- a robot standing still ----------------------------------------------------------------
@@ -400,6 +430,7 @@ def test_free_at_and_covered_read_the_nearest_cell() -> None:
     ("detect_hi", 1.5),
     ("max_peaks", 0), ("max_peaks", 201),
     ("peak_snr", -1.0), ("peak_snr", 1001.0),
+    ("amplitude_sigma", -0.1), ("amplitude_sigma", 10.5), ("amplitude_sigma", math.nan),
 ])
 def test_echo_settings_are_validated(field: str, value: float) -> None:
     bad: dict[str, Any] = {field: value}
