@@ -5,7 +5,8 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
 
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
-                     "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"},
+                     "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
+                              | "fresh14d"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -15,8 +16,8 @@ benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the bench
 ``"fresh"`` marks scenes written after the wall fit was developed, so nobody looked at them
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
 tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
-``"fresh14c"`` after the Gaussian refinement (nothing was run on either before they were
-committed). This loader lives here, not in ``mapping``, so the package never reads files by
+``"fresh14c"`` after the Gaussian refinement and ``"fresh14d"`` after the echo model began
+comparing levels (nothing was run on any of these before they were committed). This loader lives here, not in ``mapping``, so the package never reads files by
 path.
 """
 
@@ -36,7 +37,7 @@ from mapping.scene import Scene
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
-PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c")
+PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d")
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ FRESH = ("hexagon", "alcove", "z-corridor")  # written after the wall fit: group
 FRESH14 = ("kitchen", "gable", "lobby")  # written for issue 14 (localization): group "fresh14"
 FRESH14B = ("studio", "ward", "chapel")  # written after the rivals: group "fresh14b"
 FRESH14C = ("workshop", "atrium")  # written after the refinement: group "fresh14c"
+FRESH14D = ("gallery", "depot")  # written after the levels: group "fresh14d"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -54,6 +55,8 @@ INTERIOR = {
     "workshop": [(0.0, 0.0), (8.0, 0.0), (8.0, 5.0), (5.4, 5.0), (5.4, 5.012), (2.6, 5.012),
                  (2.6, 5.0), (0.0, 5.0)],
     "atrium": [(0.0, 0.0), (5.0, 0.0), (5.0, 4.75), (4.75, 5.0), (0.0, 5.0)],
+    "gallery": [(0.0, 0.0), (7.0, 0.0), (7.0, 4.5), (0.0, 4.5)],
+    "depot": [(0.0, 0.0), (9.0, 0.0), (9.0, 3.0), (4.0, 3.0), (4.0, 6.0), (0.0, 6.0)],
 }
 
 
@@ -89,12 +92,14 @@ def test_the_four_scenes_of_issue_13_are_there() -> None:
 def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
+    assert set(FRESH14D) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
                     else "fresh14" if spec.scene in FRESH14
                     else "fresh14b" if spec.scene in FRESH14B
-                    else "fresh14c" if spec.scene in FRESH14C else "held-out")
+                    else "fresh14c" if spec.scene in FRESH14C
+                    else "fresh14d" if spec.scene in FRESH14D else "held-out")
         assert spec.group == expected
 
 
@@ -147,6 +152,14 @@ def test_workshop_panels_sit_12_mm_apart_and_atrium_is_square_but_for_a_chamfer(
     assert sorted(round(w.length_m, 3) for w in atrium.walls) == [0.354, 4.75, 4.75, 5.0, 5.0]
 
 
+def test_gallery_and_depot_differ_from_their_mirrors_in_levels_and_one_free_wall() -> None:
+    gallery = {w.name: w for w in heldout_scene("gallery").walls}
+    assert {n: gallery[n].reflection for n in ("south", "west")} == {"south": 0.8, "west": 0.5}
+    assert abs(gallery["panel"].length_m - 1.0) < 1e-9
+    depot = {w.name: w for w in heldout_scene("depot").walls}
+    assert depot["hall north"].reflection == 0.6 and abs(depot["rack"].length_m - 1.0) < 1e-9
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -162,7 +175,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
     scene = heldout_scene(spec.scene)
     trajectory = spec.trajectory()
     clearance = {"fresh": FRESH_CLEARANCE_M, "fresh14b": FRESH14B_CLEARANCE_M,
-                 "fresh14c": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14c": FRESH14B_CLEARANCE_M,
+                 "fresh14d": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
