@@ -17,8 +17,8 @@ benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the bench
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
 tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
 ``"fresh14c"`` after the Gaussian refinement and ``"fresh14d"`` after the echo model began
-comparing levels (nothing was run on any of these before they were committed). This loader lives here, not in ``mapping``, so the package never reads files by
-path.
+comparing levels (nothing was run on any of these before they were committed). This
+loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
 from __future__ import annotations

@@ -187,8 +187,9 @@ def simulated(case: SceneCase, path: str, speed_m_s: float, snr_db: float | None
     n = int(traj.duration_s / config.block_s)
     seed = zlib.crc32(f"{path}@{speed_m_s:g}".encode())
     t = np.linspace(0.0, traj.duration_s, 64)
+    # "block-mean": the runs' odometry is each block's mean (mapping.simulate.block_mean_odometry)
     key = json.dumps([case.scene.to_json(), traj.pose(t).round(6).tolist(),
-                      engine(snr_db).to_dict(), config.to_json(), n, seed])
+                      engine(snr_db).to_dict(), config.to_json(), n, seed, "block-mean"])
     digest = hashlib.sha1(key.encode()).hexdigest()[:10]
     tag = "clean" if snr_db is None else f"snr{snr_db:g}"
     file = CACHE / "runs" / f"{path}_v{speed_m_s:g}_{tag}_{digest}.npz"

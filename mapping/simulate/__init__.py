@@ -16,7 +16,14 @@ import numpy as np
 
 from mapping.run import Run
 from mapping.signal import SonarConfig
-from mapping.simulate._base import PathTable, SceneLike, SimBlock, TrajectoryLike, assemble_run
+from mapping.simulate._base import (
+    PathTable,
+    SceneLike,
+    SimBlock,
+    TrajectoryLike,
+    assemble_run,
+    block_mean_odometry,
+)
 from mapping.simulate.fdtd import FdtdConfig, iter_fdtd_blocks
 from mapping.simulate.ism import IsmConfig, iter_ism_blocks
 
@@ -27,6 +34,7 @@ __all__ = [
     "SimBlock",
     "TrajectoryLike",
     "assemble_run",
+    "block_mean_odometry",
     "engine_name",
     "iter_blocks",
     "run_meta",

@@ -48,7 +48,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from mapping.run import Run
 from mapping.signal import SonarConfig
-from mapping.simulate._base import PathTable, SceneLike, SimBlock, TrajectoryLike, assemble_run
+from mapping.simulate._base import (
+    PathTable,
+    SceneLike,
+    SimBlock,
+    TrajectoryLike,
+    assemble_run,
+    block_mean_odometry,
+)
 from mapping.simulate.fdtd._config import FdtdConfig, check_courant
 from mapping.simulate.fdtd._dispersion import (
     _RESAMPLE_HALF_WIDTH,
@@ -283,11 +290,12 @@ def sim_block(setup: FdtdSetup, state: FdtdState, k: int) -> SimBlock:
         raise ValueError(f"block {k} needs {steps_needed(setup, k)} steps, {state.step} done")
     traj = setup.trajectory
     t_mid = np.array([(k + 0.5) * setup.sonar.block_s])
+    speed, yaw_rate = block_mean_odometry(traj, k * setup.sonar.block_s,
+                                          (k + 1) * setup.sonar.block_s)
     return SimBlock(
         index=k, samples=block_samples(setup, state, k), t_s=k * setup.sonar.block_s,
         pose=np.asarray(traj.pose(t_mid), dtype=np.float64).reshape(3),
-        speed_m_s=float(np.asarray(traj.speed_m_s(t_mid)).ravel()[0]),
-        yaw_rate_rad_s=float(np.asarray(traj.yaw_rate_rad_s(t_mid)).ravel()[0]),
+        speed_m_s=speed, yaw_rate_rad_s=yaw_rate,
         paths=_empty_paths(), meta={"engine": "fdtd"},
     )
 

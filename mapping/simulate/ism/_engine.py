@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mapping.signal import SonarConfig
-from mapping.simulate._base import SceneLike, SimBlock, TrajectoryLike
+from mapping.simulate._base import SceneLike, SimBlock, TrajectoryLike, block_mean_odometry
 from mapping.simulate.ism._config import IsmConfig, signal_period
 from mapping.simulate.ism._paths import (
     PreparedScene,
@@ -147,7 +147,8 @@ def iter_ism_blocks(
             sigma = math.sqrt(power / 10.0 ** (engine.snr_db / 10.0))
             samples = samples + sigma * rng.standard_normal(B)
         t_mid = np.array([(k + 0.5) * config.block_s])
-        speed = float(trajectory.speed_m_s(t_mid)[0])
+        speed, yaw_rate = block_mean_odometry(trajectory, k * config.block_s,
+                                              (k + 1) * config.block_s)
         if engine.odometry_noise_m_s > 0:
             speed += engine.odometry_noise_m_s * float(rng.standard_normal())
         yield SimBlock(
@@ -156,7 +157,7 @@ def iter_ism_blocks(
             t_s=k * config.block_s,
             pose=np.asarray(trajectory.pose(t_mid), dtype=np.float64).reshape(3),
             speed_m_s=speed,
-            yaw_rate_rad_s=float(np.asarray(trajectory.yaw_rate_rad_s(t_mid)).ravel()[0]),
+            yaw_rate_rad_s=yaw_rate,
             paths=paths,
             meta=_plan_meta(plan, prepared),
         )
