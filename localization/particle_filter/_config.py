@@ -95,6 +95,18 @@ class FilterConfig:
         re-seed before it is lost stay within this distance and heading of the estimate: a
         block the estimate explains poorly does not open the door to a symmetric look-alike
         the motion so far rules out. Once lost, proposals come from the whole map.
+    jump_dwell_blocks : int
+        An estimate that contradicts dead reckoning - farther than the anchor gates and 4
+        sigma (Mahalanobis) from where the odometry carried the last ``converged`` estimate,
+        with the motion model's growing covariance - is reported ``uncertain`` until it has
+        held for this many blocks in a row (the last of them ``converged``; 0: never held
+        back). Either the
+        robot was carried there (a kidnap, rare) or the map is wrong where the odometry
+        puts it (an incomplete map, common: measured on built maps, a robot leaving the
+        mapped walls was lost, then re-localized onto a look-alike that explained the blocks
+        as well as the truth would and reported ``converged`` metres off for up to 15
+        blocks); the blocks cannot tell which, so a jump must hold before it is trusted.
+        The estimate itself moves at once: the position recovers as fast as before.
     twin_margin_nats : float
         Echo model: a symmetric twin of the estimate (its image under a symmetry of the
         walls, :func:`localization.sensor.wall_symmetries`) is a *rival* while the evidence
@@ -167,6 +179,7 @@ class FilterConfig:
     anchor_gate_m: float = 0.5
     anchor_gate_deg: float = 30.0
     kidnap_prior_nats: float = 5.0
+    jump_dwell_blocks: int = 10
     twin_margin_nats: float = 3.0
     twin_memory: float = 0.8
     twin_fraction: float = 0.05
@@ -224,6 +237,10 @@ class FilterConfig:
         if not 0 <= self.kidnap_prior_nats <= 100:
             raise ValueError(
                 f"kidnap_prior_nats must be in [0, 100], got {self.kidnap_prior_nats}")
+        if not (isinstance(self.jump_dwell_blocks, int)
+                and 0 <= self.jump_dwell_blocks <= 1000):
+            raise ValueError(
+                f"jump_dwell_blocks must be an integer in [0, 1000], got {self.jump_dwell_blocks}")
         if not 0 <= self.twin_margin_nats <= 1000:
             raise ValueError(
                 f"twin_margin_nats must be in [0, 1000], got {self.twin_margin_nats}")

@@ -275,6 +275,27 @@ def block_status(converged: bool, covered: bool, misfits: int, lost_after: int,
     return "converged"
 
 
+def hold_jump(pose: FloatArray, cov: FloatArray,
+              reckoned: tuple[FloatArray, FloatArray] | None, dwell: int,
+              config: FilterConfig) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
+    """The status of a block the filter would call ``converged``, against dead reckoning.
+
+    ``reckoned``: the last converged estimate carried by the odometry (mean, covariance).
+    An estimate beyond the anchor gates and 4 sigma from it contradicts the odometry: it is
+    ``uncertain`` for ``jump_dwell_blocks`` blocks (counted in ``dwell``), then accepted.
+    Returns the status, the dead-reckoned pose to keep and the new count."""
+    if reckoned is None or config.jump_dwell_blocks == 0:
+        return "converged", reckoned, 0
+    mean, rc = reckoned
+    far = (math.hypot(float(pose[0] - mean[0]), float(pose[1] - mean[1])) > config.anchor_gate_m
+           or abs(float(wrap_angle(pose[2] - mean[2]))) > math.radians(config.anchor_gate_deg))
+    if not far or refine.mahalanobis(mean, rc, pose, cov) <= 4.0:
+        return "converged", reckoned, 0
+    if dwell + 1 >= config.jump_dwell_blocks:
+        return "converged", reckoned, 0
+    return "uncertain", reckoned, dwell + 1
+
+
 def kld_count(poses: FloatArray, config: FilterConfig) -> int:
     """Particles needed for KL error ``kld_epsilon`` at confidence ``1 - kld_delta``."""
     keys = np.stack([np.floor(poses[:, 0] / config.kld_bin_m),
@@ -320,6 +341,8 @@ class ParticleFilter:
         self.rivals = Rivals.none()
         self.track: tuple[FloatArray, FloatArray] | None = None
         self.scatter = refine.Scatter.none()
+        self.reckoned: tuple[FloatArray, FloatArray] | None = None
+        self.dwell = 0
         if pose is None:
             self.reset_global()
         else:
@@ -341,6 +364,8 @@ class ParticleFilter:
         self.last_pose = None
         self.rivals = Rivals.none()
         self.track = None
+        self.reckoned = None
+        self.dwell = 0
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -355,6 +380,8 @@ class ParticleFilter:
         self.rivals = Rivals.none()
         self.track = None
         c = np.asarray(cov, dtype=np.float64)
+        self.reckoned = (np.asarray(pose, dtype=np.float64).copy(), c.copy())
+        self.dwell = 0
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
                               and math.sqrt(max(c[2, 2], 0.0)) <= cl.converged_std_rad)
@@ -452,6 +479,13 @@ class ParticleFilter:
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
                               cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
+        reckoned = (None if self.reckoned is None else
+                    refine.predict(self.reckoned[0], self.reckoned[1], speed_m_s,
+                                   yaw_rate_rad_s, dt_s, cfg.motion))
+        dwell = self.dwell
+        if status == "converged":
+            status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
+                                                cfg)
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
         low_ess = ess < cfg.resample_ess_fraction * poses.shape[0]
@@ -515,6 +549,9 @@ class ParticleFilter:
         self.misfits = misfits
         self.anchored = anchored
         self.last_pose = estimate.pose.copy()
+        if estimate.status == "converged":
+            reckoned = (estimate.pose.copy(), estimate.cov.copy())   # the reported pose
+        self.reckoned, self.dwell = reckoned, dwell
         self.twin_gap = twin_gap
         self.rivals = held
         if meas is not None:
@@ -577,6 +614,11 @@ class ParticleFilter:
                           else self.track[1].copy()),
             "scatter_range_m": self.scatter.range_m.copy(),
             "scatter_cos": self.scatter.cos.copy(),
+            "reckoned_mean": (np.full(3, np.nan) if self.reckoned is None
+                              else self.reckoned[0].copy()),
+            "reckoned_cov": (np.full((3, 3), np.nan) if self.reckoned is None
+                             else self.reckoned[1].copy()),
+            "dwell": np.array(self.dwell, dtype=np.int64),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -624,6 +666,14 @@ class ParticleFilter:
                 raise ValueError("state 'track_mean' must be (3,) and 'track_cov' (3, 3)")
             if np.all(np.isfinite(tm)) and np.all(np.isfinite(tc)):
                 pf.track = (tm, tc)
+        pf.reckoned, pf.dwell = None, int(state["dwell"]) if "dwell" in state else 0
+        if "reckoned_mean" in state and "reckoned_cov" in state:
+            rm = np.array(state["reckoned_mean"], dtype=np.float64).reshape(-1)
+            rcov = np.array(state["reckoned_cov"], dtype=np.float64)
+            if rm.shape != (3,) or rcov.shape != (3, 3):
+                raise ValueError("state 'reckoned_mean' must be (3,) and 'reckoned_cov' (3, 3)")
+            if np.all(np.isfinite(rm)) and np.all(np.isfinite(rcov)):
+                pf.reckoned = (rm, rcov)
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(
                 np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),

@@ -24,6 +24,7 @@ from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.particle_filter._filter import (  # not exported: tested directly
     block_fit,
     block_status,
+    hold_jump,
     propose,
 )
 from localization.sensor import (
@@ -157,7 +158,9 @@ def test_tracking_converges_and_a_kidnap_is_reported_and_recovered(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
         kidnap: tuple[FloatArray, list[HeatMap]], seed: int) -> None:
     truth, _ = track
-    pf, ests = _tracked(tables, track, seed)
+    # a jump is held for jump_dwell_blocks before it is trusted; 3 here, so that the 11
+    # blocks after the kidnap see the recovered estimate accepted
+    pf, ests = _tracked(tables, track, seed, dataclasses.replace(CONFIG, jump_dwell_blocks=3))
     last = ests[-1]
     assert last.status == "converged" and last.fit >= CONFIG.fit_threshold
     assert all(_error_m(e, p) < 0.05 for e, p in zip(ests, truth, strict=True))
@@ -173,6 +176,35 @@ def test_tracking_converges_and_a_kidnap_is_reported_and_recovered(
     back = [i for i, err in enumerate(errors) if err < 0.2]
     assert back and back[0] < 10, errors
     assert errors[-1] < 0.2 and statuses[-1] == "converged"
+    # the jump against the odometry is held: uncertain for at least 2 blocks once back
+    assert min(i for i, s in enumerate(statuses) if s == "converged") >= back[0] + 2
+
+
+def test_a_jump_against_dead_reckoning_is_held_then_accepted() -> None:
+    """``hold_jump``: an estimate beyond the anchor gates and 4 sigma from where the odometry
+    carried the last converged pose is uncertain for jump_dwell_blocks - 1 blocks, then
+    accepted; near the dead-reckoned pose, without one, with a dead-reckoned covariance
+    that allows the jump, or with the hold off, it is converged at once."""
+    config = dataclasses.replace(CONFIG, jump_dwell_blocks=4)
+    tight = np.diag([0.02**2, 0.02**2, math.radians(2.0) ** 2])
+    reckoned = (np.array([1.0, 1.0, 0.0]), tight)
+    far = np.array([4.0, 2.0, 3.0])
+    near = np.array([1.05, 1.0, 0.02])
+    assert hold_jump(far, tight, None, 0, config) == ("converged", None, 0)
+    assert hold_jump(near, tight, reckoned, 2, config)[::2] == ("converged", 0)
+    dwell, seen = 0, []
+    for _ in range(5):
+        status, kept, dwell = hold_jump(far, tight, reckoned, dwell, config)
+        seen.append(status)
+        assert kept is reckoned
+    assert seen == ["uncertain"] * 3 + ["converged", "uncertain"]   # the caller then
+    # replaces the dead-reckoned pose by the accepted estimate, so the 5th never happens
+    loose = (reckoned[0], np.diag([5.0**2, 5.0**2, math.pi**2]))
+    assert hold_jump(far, tight, loose, 0, config)[0] == "converged"
+    off = dataclasses.replace(CONFIG, jump_dwell_blocks=0)
+    assert hold_jump(far, tight, reckoned, 0, off)[0] == "converged"
+    with pytest.raises(ValueError, match="^jump_dwell_blocks must be"):
+        FilterConfig(jump_dwell_blocks=-1)
 
 
 def test_without_relocalization_a_kidnap_stays_lost(
