@@ -658,27 +658,30 @@ class ParticleFilter:
             if rp.shape[0] != rg.shape[0]:
                 raise ValueError("state 'rival_poses' (k, 3) and 'rival_gap' (k,) must agree")
             pf.rivals = Rivals(rp, rg)
-        pf.track, pf.scatter = None, refine.Scatter.none()
-        if "track_mean" in state and "track_cov" in state:
-            tm = np.array(state["track_mean"], dtype=np.float64).reshape(-1)
-            tc = np.array(state["track_cov"], dtype=np.float64)
-            if tm.shape != (3,) or tc.shape != (3, 3):
-                raise ValueError("state 'track_mean' must be (3,) and 'track_cov' (3, 3)")
-            if np.all(np.isfinite(tm)) and np.all(np.isfinite(tc)):
-                pf.track = (tm, tc)
-        pf.reckoned, pf.dwell = None, int(state["dwell"]) if "dwell" in state else 0
-        if "reckoned_mean" in state and "reckoned_cov" in state:
-            rm = np.array(state["reckoned_mean"], dtype=np.float64).reshape(-1)
-            rcov = np.array(state["reckoned_cov"], dtype=np.float64)
-            if rm.shape != (3,) or rcov.shape != (3, 3):
-                raise ValueError("state 'reckoned_mean' must be (3,) and 'reckoned_cov' (3, 3)")
-            if np.all(np.isfinite(rm)) and np.all(np.isfinite(rcov)):
-                pf.reckoned = (rm, rcov)
+        pf.scatter = refine.Scatter.none()
+        pf.track = _gaussian_of(state, "track")
+        pf.reckoned = _gaussian_of(state, "reckoned")
+        pf.dwell = int(state["dwell"]) if "dwell" in state else 0
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(
                 np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),
                 np.array(state["scatter_cos"], dtype=np.float64).reshape(-1))
         return pf
+
+
+def _gaussian_of(state: Mapping[str, NDArray[Any]], name: str
+                 ) -> tuple[FloatArray, FloatArray] | None:
+    """The Gaussian ``<name>_mean`` (3,), ``<name>_cov`` (3, 3) of a state dict (None when
+    absent, as in older checkpoints, or stored as NaN)."""
+    if f"{name}_mean" not in state or f"{name}_cov" not in state:
+        return None
+    mean = np.array(state[f"{name}_mean"], dtype=np.float64).reshape(-1)
+    cov = np.array(state[f"{name}_cov"], dtype=np.float64)
+    if mean.shape != (3,) or cov.shape != (3, 3):
+        raise ValueError(f"state '{name}_mean' must be (3,) and '{name}_cov' (3, 3)")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        return None
+    return mean, cov
 
 
 # ---- running a filter over a run -----------------------------------------------------------

@@ -316,6 +316,28 @@ def test_checkpoint_keeps_a_global_start_fresh(
         k: v.tobytes() for k, v in clone.state_dict().items()}
 
 
+def test_checkpoint_keeps_a_held_jump(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
+    """A restored filter holding a jump (dead-reckoned pose and count) goes on holding it
+    exactly as the filter that never stopped; one that forgot would say converged at once."""
+    pf, _ = _tracked(tables, track, 1)
+    _, k_hms = kidnap
+    k = 0
+    while pf.dwell == 0:
+        assert k < len(k_hms) - 1, "the recovered estimate was never held"
+        pf.step(k_hms[k], *KIDNAP_ODO[k], DT)
+        k += 1
+    clone = _round_trip(pf, tables)
+    assert clone.dwell == pf.dwell and clone.reckoned is not None and pf.reckoned is not None
+    np.testing.assert_array_equal(clone.reckoned[0], pf.reckoned[0])
+    forgetful = _round_trip(pf, tables)
+    forgetful.reckoned = None
+    a, b = pf.step(k_hms[k], *KIDNAP_ODO[k], DT), clone.step(k_hms[k], *KIDNAP_ODO[k], DT)
+    assert _same(a, b) and a.status == "uncertain" and pf.dwell == clone.dwell
+    assert forgetful.step(k_hms[k], *KIDNAP_ODO[k], DT).status == "converged"
+
+
 def test_checkpoint_without_the_status_fields_still_loads(tables: SensorTables) -> None:
     pf = ParticleFilter(tables, dataclasses.replace(CONFIG, n_particles=50),
                         np.random.default_rng(0), pose=START, cov=TIGHT)
