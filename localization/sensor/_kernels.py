@@ -250,7 +250,7 @@ def _echo_kernel(
                 if inside:
                     d = (m.r[j] - r) / s_k
                     e = 0.5 * d * d
-                    if m.use_cos:
+                    if m.use_cos and e < 18.0:      # most pairs are already out on range
                         dc = (m.c[j] - pc[i, k]) / m.sig_c
                         e += 0.5 * dc * dc
                     if e < 18.0:
