@@ -81,7 +81,8 @@ class SensorConfig:
         echo's, after the block's common gain is fitted per pose (0: levels not compared).
         Measured on tracked runs (the simulator at SNR 10 dB, matched isolated echoes):
         scatter 0.18-0.24 on true walls, 0.21-0.43 on built maps; 0.5 leaves room for
-        walls whose strength the map got wrong.
+        walls whose strength the map got wrong. Not used with ``sonar_height_m`` (a 3-D room:
+        floor copies merge with their wall echoes; measured to mislead on raw recordings).
     max_peaks : int
         Echo model: strongest heat-map peaks read per block; twice as many with a floor
         (``sonar_height_m``): the copies double the echoes worth reading (measured on the

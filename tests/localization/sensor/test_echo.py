@@ -548,3 +548,8 @@ def test_floor_and_ceiling_copies_explain_the_ghosts_of_a_3d_room() -> None:
         tw = build_tables(wm, wide, sonar=cfg)
         ew = explanation(tw, prepare_measurement(hm, wide), run.pose[k][None])
         assert ex["3d"].log_likelihood[0] > ew.log_likelihood[0], (k, ex, ew)
+        # levels are compared in 2-D rooms only (floor copies merge with their wall echoes)
+        off = build_tables(wm, dataclasses.replace(tall, amplitude_sigma=0.0), sonar=cfg)
+        np.testing.assert_array_equal(
+            explanation(off, prepare_measurement(hm, tall), run.pose[k][None]).log_likelihood,
+            ex["3d"].log_likelihood)
