@@ -243,8 +243,13 @@ def jumped(previous: FloatArray | None, estimate: FloatArray, speed_m_s: float,
     if previous is None or not np.all(np.isfinite(previous)):
         return False
     pred = motion.predict_mean(previous, speed_m_s, yaw_rate_rad_s, dt_s)
-    d = math.hypot(float(estimate[0] - pred[0]), float(estimate[1] - pred[1]))
-    return d > gate_m or abs(float(wrap_angle(estimate[2] - pred[2]))) > gate_rad
+    return beyond_gates(estimate, pred, gate_m, gate_rad)
+
+
+def beyond_gates(a: FloatArray, b: FloatArray, gate_m: float, gate_rad: float) -> bool:
+    """Whether poses ``a`` and ``b`` lie farther apart than ``gate_m`` or ``gate_rad``."""
+    d = math.hypot(float(a[0] - b[0]), float(a[1] - b[1]))
+    return d > gate_m or abs(float(wrap_angle(a[2] - b[2]))) > gate_rad
 
 
 def block_fit(tables: SensorTables, measurement: Measurement, pose: FloatArray) -> float:
@@ -287,8 +292,7 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
     if reckoned is None or config.jump_dwell_blocks == 0:
         return "converged", reckoned, 0
     mean, rc = reckoned
-    far = (math.hypot(float(pose[0] - mean[0]), float(pose[1] - mean[1])) > config.anchor_gate_m
-           or abs(float(wrap_angle(pose[2] - mean[2]))) > math.radians(config.anchor_gate_deg))
+    far = beyond_gates(pose, mean, config.anchor_gate_m, math.radians(config.anchor_gate_deg))
     if not far or refine.mahalanobis(mean, rc, pose, cov) <= 4.0:
         return "converged", reckoned, 0
     if dwell + 1 >= config.jump_dwell_blocks:
