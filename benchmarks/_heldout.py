@@ -6,7 +6,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
-                              | "fresh14d"},
+                              | "fresh14d" | "fresh14e"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -16,8 +16,9 @@ benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the bench
 ``"fresh"`` marks scenes written after the wall fit was developed, so nobody looked at them
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
 tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
-``"fresh14c"`` after the Gaussian refinement and ``"fresh14d"`` after the echo model began
-comparing levels (nothing was run on any of these before they were committed). This
+``"fresh14c"`` after the Gaussian refinement, ``"fresh14d"`` after the echo model began
+comparing levels and ``"fresh14e"`` after the fresh14d rerun, before any measurement with the
+filter's next change (nothing was run on any of these before they were committed). This
 loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -37,7 +38,8 @@ from mapping.scene import Scene
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
-PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d")
+PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
+               "fresh14e")
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ FRESH14 = ("kitchen", "gable", "lobby")  # written for issue 14 (localization): 
 FRESH14B = ("studio", "ward", "chapel")  # written after the rivals: group "fresh14b"
 FRESH14C = ("workshop", "atrium")  # written after the refinement: group "fresh14c"
 FRESH14D = ("gallery", "depot")  # written after the levels: group "fresh14d"
+FRESH14E = ("foyer", "annex")  # written after the fresh14d rerun: group "fresh14e"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -57,6 +58,9 @@ INTERIOR = {
     "atrium": [(0.0, 0.0), (5.0, 0.0), (5.0, 4.75), (4.75, 5.0), (0.0, 5.0)],
     "gallery": [(0.0, 0.0), (7.0, 0.0), (7.0, 4.5), (0.0, 4.5)],
     "depot": [(0.0, 0.0), (9.0, 0.0), (9.0, 3.0), (4.0, 3.0), (4.0, 6.0), (0.0, 6.0)],
+    "foyer": [(2.0, 0.0), (8.0, 0.0), (8.0, 3.4), (3.4, 3.4), (3.4, 7.8), (0.0, 7.8),
+              (0.0, 2.0)],
+    "annex": [(0.0, 0.0), (8.0, 0.0), (8.0, 0.8), (8.0, 2.6), (0.0, 4.6)],
 }
 
 
@@ -92,14 +96,15 @@ def test_the_four_scenes_of_issue_13_are_there() -> None:
 def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
-    assert set(FRESH14D) <= set(SCENES)
+    assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
                     else "fresh14" if spec.scene in FRESH14
                     else "fresh14b" if spec.scene in FRESH14B
                     else "fresh14c" if spec.scene in FRESH14C
-                    else "fresh14d" if spec.scene in FRESH14D else "held-out")
+                    else "fresh14d" if spec.scene in FRESH14D
+                    else "fresh14e" if spec.scene in FRESH14E else "held-out")
         assert spec.group == expected
 
 
@@ -160,6 +165,33 @@ def test_gallery_and_depot_differ_from_their_mirrors_in_levels_and_one_free_wall
     assert depot["hall north"].reflection == 0.6 and abs(depot["rack"].length_m - 1.0) < 1e-9
 
 
+def test_foyer_is_near_its_diagonal_mirror_and_annex_tapers_to_an_open_end() -> None:
+    foyer = heldout_scene("foyer")
+    walls = {w.name: w for w in foyer.walls}
+    outline = np.array(INTERIOR["foyer"])
+    mirrored = outline[:, ::-1]  # about y = x: the same corners but the four of the wing ends
+    gap = np.linalg.norm(mirrored[:, None] - outline[None], axis=2).min(axis=1)
+    assert np.isclose(gap.max(), 0.2) and np.sum(gap > 1e-9) == 4  # north wing 0.2 m shorter
+    assert abs(_directions_deg("foyer")[list(walls).index("oblique")] - 135.0) < 1e-9
+    assert abs(walls["oblique"].length_m - 2.0 * np.sqrt(2.0)) < 1e-9
+    assert {n for n, w in walls.items() if w.reflection is not None} == {"west"}
+    assert walls["west"].reflection == 0.5
+    panel = walls["panel"]
+    assert abs(panel.length_m - 1.0) < 1e-3
+    assert abs(_directions_deg("foyer")[list(walls).index("panel")] - 30.0) < 0.1
+    others = np.array([foyer.segments()[k] for k, n in enumerate(walls) if n != "panel"])
+    ends = np.array([panel.start, panel.end], dtype=np.float64)
+    assert distance_to_walls(ends, others).min() > 1.4  # both ends free, far from any wall
+    annex = heldout_scene("annex")
+    walls = {w.name: w for w in annex.walls}
+    assert {n for n, w in walls.items() if w.reflection is not None} == {"north (glazed)"}
+    assert walls["north (glazed)"].reflection == 0.7
+    assert abs(_directions_deg("annex")[list(walls).index("north (glazed)")]
+               - (180.0 - np.degrees(np.arctan2(2.0, 8.0)))) < 1e-9  # 14 deg off the south
+    # the east end is open from y = 0.8 to 2.6: its middle is 0.9 m from every wall
+    assert abs(distance_to_walls(np.array([[8.0, 1.7]]), annex.segments())[0] - 0.9) < 1e-9
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -176,7 +208,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
     trajectory = spec.trajectory()
     clearance = {"fresh": FRESH_CLEARANCE_M, "fresh14b": FRESH14B_CLEARANCE_M,
                  "fresh14c": FRESH14B_CLEARANCE_M,
-                 "fresh14d": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14d": FRESH14B_CLEARANCE_M,
+                 "fresh14e": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
