@@ -107,6 +107,15 @@ class FilterConfig:
         as well as the truth would and reported ``converged`` metres off for up to 15
         blocks); the blocks cannot tell which, so a jump must hold before it is trusted.
         The estimate itself moves at once: the position recovers as fast as before.
+    confirm_blocks : int
+        A global start has no dead reckoning to hold a jump against: its first ``converged``
+        estimate is reported ``uncertain`` until it has been ``converged`` on this many
+        blocks that agree with each other through the odometry (each within the anchor
+        gates or 4 sigma of the one before carried by the motion model; a block that
+        contradicts its predecessor starts the count again; 0 or 1: at once). A look-alike
+        that explains one or two blocks of a map wrong where the robot is (a built map
+        missing walls) rarely keeps explaining them as the robot moves. A tracked start is
+        confirmed by its prior.
     twin_margin_nats : float
         Echo model: a symmetric twin of the estimate (its image under a symmetry of the
         walls, :func:`localization.sensor.wall_symmetries`) is a *rival* while the evidence
@@ -180,6 +189,7 @@ class FilterConfig:
     anchor_gate_deg: float = 30.0
     kidnap_prior_nats: float = 5.0
     jump_dwell_blocks: int = 10
+    confirm_blocks: int = 4
     twin_margin_nats: float = 3.0
     twin_memory: float = 0.8
     twin_fraction: float = 0.05
@@ -241,6 +251,9 @@ class FilterConfig:
                 and 0 <= self.jump_dwell_blocks <= 1000):
             raise ValueError(
                 f"jump_dwell_blocks must be an integer in [0, 1000], got {self.jump_dwell_blocks}")
+        if not (isinstance(self.confirm_blocks, int) and 0 <= self.confirm_blocks <= 1000):
+            raise ValueError(
+                f"confirm_blocks must be an integer in [0, 1000], got {self.confirm_blocks}")
         if not 0 <= self.twin_margin_nats <= 1000:
             raise ValueError(
                 f"twin_margin_nats must be in [0, 1000], got {self.twin_margin_nats}")

@@ -280,24 +280,49 @@ def block_status(converged: bool, covered: bool, misfits: int, lost_after: int,
     return "converged"
 
 
+def contradicts(pose: FloatArray, cov: FloatArray, reckoned: tuple[FloatArray, FloatArray],
+                config: FilterConfig) -> bool:
+    """Whether an estimate (pose, cov) contradicts the dead-reckoned ``reckoned`` (mean,
+    covariance): beyond the anchor gates and more than 4 sigma (Mahalanobis) from it."""
+    mean, rc = reckoned
+    far = beyond_gates(pose, mean, config.anchor_gate_m, math.radians(config.anchor_gate_deg))
+    return far and refine.mahalanobis(mean, rc, pose, cov) > 4.0
+
+
 def hold_jump(pose: FloatArray, cov: FloatArray,
               reckoned: tuple[FloatArray, FloatArray] | None, dwell: int,
               config: FilterConfig) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
     """The status of a block the filter would call ``converged``, against dead reckoning.
 
     ``reckoned``: the last converged estimate carried by the odometry (mean, covariance).
-    An estimate beyond the anchor gates and 4 sigma from it contradicts the odometry: it is
-    ``uncertain`` for ``jump_dwell_blocks`` blocks (counted in ``dwell``), then accepted.
+    An estimate that :func:`contradicts` it is ``uncertain`` for ``jump_dwell_blocks``
+    blocks (counted in ``dwell``), then accepted.
     Returns the status, the dead-reckoned pose to keep and the new count."""
     if reckoned is None or config.jump_dwell_blocks == 0:
         return "converged", reckoned, 0
-    mean, rc = reckoned
-    far = beyond_gates(pose, mean, config.anchor_gate_m, math.radians(config.anchor_gate_deg))
-    if not far or refine.mahalanobis(mean, rc, pose, cov) <= 4.0:
+    if not contradicts(pose, cov, reckoned, config):
         return "converged", reckoned, 0
     if dwell + 1 >= config.jump_dwell_blocks:
         return "converged", reckoned, 0
     return "uncertain", reckoned, dwell + 1
+
+
+def confirm_start(pose: FloatArray, cov: FloatArray,
+                  candidate: tuple[FloatArray, FloatArray] | None, count: int,
+                  config: FilterConfig) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
+    """The status of a global start's block the filter would call ``converged`` before its
+    first convergence is confirmed (``FilterConfig.confirm_blocks``).
+
+    ``candidate``: the previous such estimate carried by the odometry (None at the first);
+    ``count``: how many agreeing ones led to it. An estimate that does not
+    :func:`contradict <contradicts>` the candidate adds one, one that does starts again at
+    one. Returns ``converged`` once the count reaches ``confirm_blocks`` (then the count is
+    0), else ``uncertain`` with this estimate as the next candidate."""
+    agree = candidate is not None and not contradicts(pose, cov, candidate, config)
+    count = count + 1 if agree else 1
+    if count >= config.confirm_blocks:
+        return "converged", candidate, 0
+    return "uncertain", (np.array(pose, dtype=np.float64), np.array(cov, dtype=np.float64)), count
 
 
 def kld_count(poses: FloatArray, config: FilterConfig) -> int:
@@ -347,6 +372,7 @@ class ParticleFilter:
         self.scatter = refine.Scatter.none()
         self.reckoned: tuple[FloatArray, FloatArray] | None = None
         self.dwell = 0
+        self.confirmed = False
         if pose is None:
             self.reset_global()
         else:
@@ -370,6 +396,7 @@ class ParticleFilter:
         self.track = None
         self.reckoned = None
         self.dwell = 0
+        self.confirmed = False
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -386,6 +413,7 @@ class ParticleFilter:
         c = np.asarray(cov, dtype=np.float64)
         self.reckoned = (np.asarray(pose, dtype=np.float64).copy(), c.copy())
         self.dwell = 0
+        self.confirmed = True
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
                               and math.sqrt(max(c[2, 2], 0.0)) <= cl.converged_std_rad)
@@ -486,10 +514,14 @@ class ParticleFilter:
         reckoned = (None if self.reckoned is None else
                     refine.predict(self.reckoned[0], self.reckoned[1], speed_m_s,
                                    yaw_rate_rad_s, dt_s, cfg.motion))
-        dwell = self.dwell
-        if status == "converged":
+        dwell, confirmed = self.dwell, self.confirmed
+        if status == "converged" and confirmed:
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
                                                 cfg)
+        elif status == "converged":
+            status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
+                                                    dwell, cfg)
+            confirmed = status == "converged"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
         low_ess = ess < cfg.resample_ess_fraction * poses.shape[0]
@@ -555,7 +587,7 @@ class ParticleFilter:
         self.last_pose = estimate.pose.copy()
         if estimate.status == "converged":
             reckoned = (estimate.pose.copy(), estimate.cov.copy())   # the reported pose
-        self.reckoned, self.dwell = reckoned, dwell
+        self.reckoned, self.dwell, self.confirmed = reckoned, dwell, confirmed
         self.twin_gap = twin_gap
         self.rivals = held
         if meas is not None:
@@ -623,6 +655,7 @@ class ParticleFilter:
             "reckoned_cov": (np.full((3, 3), np.nan) if self.reckoned is None
                              else self.reckoned[1].copy()),
             "dwell": np.array(self.dwell, dtype=np.int64),
+            "confirmed": np.array(self.confirmed),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -666,6 +699,9 @@ class ParticleFilter:
         pf.track = _gaussian_of(state, "track")
         pf.reckoned = _gaussian_of(state, "reckoned")
         pf.dwell = int(state["dwell"]) if "dwell" in state else 0
+        # checkpoints from before the confirmation: a filter that had converged is confirmed
+        pf.confirmed = (bool(state["confirmed"]) if "confirmed" in state
+                        else pf.reckoned is not None)
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(
                 np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),

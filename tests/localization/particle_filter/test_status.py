@@ -24,6 +24,7 @@ from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.particle_filter._filter import (  # not exported: tested directly
     block_fit,
     block_status,
+    confirm_start,
     hold_jump,
     propose,
 )
@@ -205,6 +206,54 @@ def test_a_jump_against_dead_reckoning_is_held_then_accepted() -> None:
     assert hold_jump(far, tight, reckoned, 0, off)[0] == "converged"
     with pytest.raises(ValueError, match="^jump_dwell_blocks must be"):
         FilterConfig(jump_dwell_blocks=-1)
+
+
+def test_a_global_start_is_confirmed_only_by_agreeing_blocks() -> None:
+    """``confirm_start``: without a prior, estimates the filter would call converged are
+    uncertain until confirm_blocks of them agree through the odometry; one that contradicts
+    its predecessor starts the count again (a look-alike hopping between places is never
+    confirmed); confirm_blocks 0 or 1 confirms at once."""
+    config = dataclasses.replace(CONFIG, confirm_blocks=3)
+    tight = np.diag([0.02**2, 0.02**2, math.radians(2.0) ** 2])
+    here, there = np.array([1.0, 1.0, 0.0]), np.array([4.0, 2.0, 3.0])
+    seen, cand, count = [], None, 0
+    for pose in (here, there, here, there):            # hopping: never two in a row agree
+        status, cand, count = confirm_start(pose, tight, cand, count, config)
+        seen.append((status, count))
+        assert cand is not None
+        np.testing.assert_array_equal(cand[0], pose)      # the next candidate
+    assert seen == [("uncertain", 1)] * 4
+    near = np.array([4.03, 2.0, 3.01])
+    assert confirm_start(near, tight, cand, count, config)[::2] == ("uncertain", 2)
+    status, kept, count = confirm_start(near, tight, (near, tight), 2, config)
+    assert (status, count) == ("converged", 0) and kept is not None
+    for at_once in (0, 1):
+        cfg = dataclasses.replace(CONFIG, confirm_blocks=at_once)
+        assert confirm_start(there, tight, None, 0, cfg)[0] == "converged"
+    with pytest.raises(ValueError, match="^confirm_blocks must be"):
+        FilterConfig(confirm_blocks=-1)
+
+
+def test_a_global_start_says_converged_only_after_confirmation(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """End to end on the ideal map: a global start reports its first ``converged`` no earlier
+    than confirm_blocks blocks after its estimate began to look converged, and then at the
+    truth; with confirmation off it says so at once. A tracked start (its prior) is
+    confirmed from the first block."""
+    truth, hms = track
+    first = {}
+    for blocks in (1, 3):
+        cfg = dataclasses.replace(CONFIG, confirm_blocks=blocks)
+        pf = ParticleFilter(tables, cfg, np.random.default_rng(5))
+        ests = [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)]
+        conv = [k for k, e in enumerate(ests) if e.status == "converged"]
+        assert conv, f"confirm_blocks={blocks}: never converged"
+        first[blocks] = conv[0]
+        assert all(_error_m(ests[k], truth[k]) < 0.1 for k in conv)
+        assert pf.confirmed
+    assert first[3] >= first[1] + 2
+    pf, _ = _tracked(tables, track, 0, dataclasses.replace(CONFIG, confirm_blocks=5))
+    assert pf.confirmed
 
 
 def test_without_relocalization_a_kidnap_stays_lost(
