@@ -77,6 +77,35 @@ class _Out(NamedTuple):
     bearing: np.ndarray  # (n, cap)
 
 
+class _Scratch(NamedTuple):
+    """Work arrays of one thread, reused pose after pose (allocating them per pose cost
+    about a sixth of the kernel). ``stamp[i, j]`` is the pose index for which the order-2
+    wall pair (i, j) was traced (-1: not yet), ``valid2[i, j]`` its result and ``pts2[i, j]``
+    its bounce points: the reversed pair is the same path walked backwards (a monostatic
+    sonar), so it reuses them instead of tracing again."""
+
+    mA: np.ndarray  # (kmax + 1, 2, 2)
+    mb: np.ndarray  # (kmax + 1, 2)
+    img: np.ndarray  # (kmax + 1, 2)
+    seq: np.ndarray  # (kmax,) int64
+    nxt: np.ndarray  # (kmax,) int64
+    pts: np.ndarray  # (kmax, 2)
+    keys: np.ndarray  # (cap, 6)
+    stamp: np.ndarray  # (W, W) int64
+    valid2: np.ndarray  # (W, W) bool
+    pts2: np.ndarray  # (W, W, 2, 2)
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _scratch(n_walls: int, kmax: int, cap: int) -> _Scratch:
+    return _Scratch(np.empty((kmax + 1, 2, 2)), np.empty((kmax + 1, 2)),
+                    np.empty((kmax + 1, 2)), np.empty(kmax, dtype=np.int64),
+                    np.empty(kmax, dtype=np.int64), np.empty((kmax, 2)), np.empty((cap, 6)),
+                    np.full((n_walls, n_walls), -1, dtype=np.int64),
+                    np.zeros((n_walls, n_walls), dtype=np.bool_),
+                    np.empty((n_walls, n_walls, 2, 2)))
+
+
 @numba.njit(**NUMBA_FLAGS)
 def _cross(ax: float, ay: float, bx: float, by: float) -> float:
     return ax * by - ay * bx
@@ -182,12 +211,14 @@ def _trace(walls: _Walls, seq: np.ndarray, k: int, img: np.ndarray, sx: float, s
         prev_zero = False
         if _blocked(walls, ax, ay, bx, by, w1, w2, U_TOL):
             return False
+        if k == 1:
+            return True  # the way back is the same leg, with the same wall left out
     return True
 
 
 @numba.njit(**NUMBA_FLAGS)
 def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarray, out: _Out,
-                 i: int, keys: np.ndarray) -> None:
+                 i: int, sc: _Scratch) -> None:
     """All valid paths of one pose into row ``i`` of ``out`` (sorted by length): the exact
     ones, less the order-2 paths of each right corner, then the corners' vertex echoes."""
     n_walls = walls.p0.shape[0]
@@ -200,13 +231,8 @@ def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarra
     tx, ty = sign * hx, sign * hy  # direction of travel
     vx, vy = lim.speed_m_s * hx, lim.speed_m_s * hy  # velocity
     c = lim.sound_speed_m_s
-    mA = np.empty((kmax + 1, 2, 2))
-    mb = np.empty((kmax + 1, 2))
-    img = np.empty((kmax + 1, 2))
-    seq = np.empty(kmax, dtype=np.int64)
-    nxt = np.empty(kmax, dtype=np.int64)
-    pts = np.empty((kmax, 2))
-    mA[0] = np.eye(2)
+    mA, mb, img, seq, nxt, pts, keys = sc.mA, sc.mb, sc.img, sc.seq, sc.nxt, sc.pts, sc.keys
+    mA[0, 0, 0], mA[0, 0, 1], mA[0, 1, 0], mA[0, 1, 1] = 1.0, 0.0, 0.0, 1.0
     mb[0] = 0.0
     img[0, 0], img[0, 1] = sx, sy
     count = 0
@@ -234,8 +260,23 @@ def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarra
                 depth += 1
                 nxt[depth] = 0
                 continue
-            if not _trace(walls, seq, order, img, sx, sy, pts):
-                continue
+            if order == 2 and sc.stamp[seq[1], seq[0]] == i:
+                # the reversed pair was traced for this pose: the same path backwards
+                if not sc.valid2[seq[1], seq[0]]:
+                    continue
+                pts[0, 0], pts[0, 1] = sc.pts2[seq[1], seq[0], 1, 0], sc.pts2[seq[1], seq[0], 1, 1]
+                pts[1, 0], pts[1, 1] = sc.pts2[seq[1], seq[0], 0, 0], sc.pts2[seq[1], seq[0], 0, 1]
+            else:
+                ok = _trace(walls, seq, order, img, sx, sy, pts)
+                if order == 2:
+                    sc.stamp[seq[0], seq[1]] = i
+                    sc.valid2[seq[0], seq[1]] = ok
+                    if ok:
+                        for m in range(2):
+                            sc.pts2[seq[0], seq[1], m, 0] = pts[m, 0]
+                            sc.pts2[seq[0], seq[1], m, 1] = pts[m, 1]
+                if not ok:
+                    continue
             if _seen(mA[order], mb[order], keys, min(count, cap)):
                 continue
             # geometry of the unfolded path: image -> receiver
@@ -382,14 +423,20 @@ def _swap(out: _Out, i: int, a: int, b: int) -> None:
                 out.points[i, b, m, q], out.points[i, a, m, q])
 
 
+#: Poses per work item of the parallel loop (each item allocates its scratch once).
+CHUNK = 32
+
+
 @numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
 def _batch_echoes(walls: _Walls, lim: _Limits, corners: _Corners, poses: np.ndarray,
                   out: _Out) -> None:
-    """Echoes of every pose (parallel over poses); see :func:`_pose_echoes`."""
+    """Echoes of every pose (parallel over chunks of poses); see :func:`_pose_echoes`."""
+    n = poses.shape[0]
     cap = out.path_m.shape[1]
-    for i in numba.prange(poses.shape[0]):
-        keys = np.empty((cap, 6))
-        _pose_echoes(walls, lim, corners, poses[i], out, i, keys)
+    for c in numba.prange((n + CHUNK - 1) // CHUNK):
+        sc = _scratch(walls.p0.shape[0], lim.max_order, cap)
+        for i in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            _pose_echoes(walls, lim, corners, poses[i], out, i, sc)
 
 
 @numba.njit(**NUMBA_FLAGS)
@@ -397,9 +444,9 @@ def _serial_echoes(walls: _Walls, lim: _Limits, corners: _Corners, poses: np.nda
                    out: _Out) -> None:
     """Echoes of every pose, serially (no thread start-up: one pose, or the few poses of a
     finite-difference Jacobian, where starting a parallel region costs more than the work)."""
-    keys = np.empty((out.path_m.shape[1], 6))
+    sc = _scratch(walls.p0.shape[0], lim.max_order, out.path_m.shape[1])
     for i in range(poses.shape[0]):
-        _pose_echoes(walls, lim, corners, poses[i], out, i, keys)
+        _pose_echoes(walls, lim, corners, poses[i], out, i, sc)
 
 
 # ---- rendering ------------------------------------------------------------------------------

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from mapping.heatmap import HeatMap, heatmap_of_run
 from mapping.run import Run
+from mapping.walls._kernels import _local_maxima
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -102,10 +102,11 @@ def heatmap_peaks(hm: HeatMap, params: PeakParams = PeakParams()) -> Peaks:
     """Local maxima of ``hm.H`` that stand above its floor (see the module docstring)."""
     H = np.asarray(hm.H, dtype=np.float64)
     noise = float(np.median(H))
-    size = (2 * params.angle_window + 1, 2 * params.range_window + 1)
-    local = ndimage.maximum_filter(H, size=size, mode=("nearest", "wrap"))
     thr = max(params.snr * noise, params.min_relative * float(H.max()))
-    it, ir = np.nonzero((H >= local) & (H > thr))
+    # the cells above thr that are the largest of their window (numba; the numpy twin with
+    # scipy.ndimage.maximum_filter is in the tests)
+    it, ir = _local_maxima(np.ascontiguousarray(H), thr, params.angle_window,
+                           params.range_window)
     step = float(hm.ranges_m[1] - hm.ranges_m[0])
     r = ir * step
     keep = (r >= params.min_range_m) & (r <= params.max_range_m)
