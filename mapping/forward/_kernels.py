@@ -106,12 +106,12 @@ def _scratch(n_walls: int, kmax: int, cap: int) -> _Scratch:
                     np.empty((n_walls, n_walls, 2, 2)))
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _cross(ax: float, ay: float, bx: float, by: float) -> float:
     return ax * by - ay * bx
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _corner_ok(walls: _Walls, a: int, b: int, cx: float, cy: float, px: float, py: float) -> bool:
     """Two bounces at one point C (walls a then b): valid only in an inside corner.
 
@@ -137,7 +137,7 @@ def _corner_ok(walls: _Walls, a: int, b: int, cx: float, cy: float, px: float, p
     return False
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _ray_from(walls: _Walls, w: int, cx: float, cy: float, side: int) -> tuple[float, float]:
     """Direction along wall ``w`` from point C towards its end ``side`` (0: p0, 1: p1);
     (0, 0) when C is (within tolerance) that end itself."""
@@ -149,7 +149,7 @@ def _ray_from(walls: _Walls, w: int, cx: float, cy: float, side: int) -> tuple[f
     return ex, ey
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int, w2: int,
              u_tol: float) -> bool:
     """Whether any wall other than w1, w2 crosses the open leg a -> b (within ``u_tol`` of
@@ -170,7 +170,7 @@ def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int,
     return False
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _trace(walls: _Walls, seq: np.ndarray, k: int, img: np.ndarray, sx: float, sy: float,
            pts: np.ndarray) -> bool:
     """Specular points of the wall sequence ``seq[:k]`` (images ``img[0..k]``, img[0] = S);
@@ -378,7 +378,7 @@ def _vertex_echo(walls: _Walls, lim: _Limits, corners: _Corners, m: int, sx: flo
     return True
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _compose(walls: _Walls, w: int, mA: np.ndarray, mb: np.ndarray, depth: int) -> None:
     """Map after one more reflection in wall w: (A, b) -> (M A, M b + m)."""
     M = walls.A[w]
@@ -388,7 +388,7 @@ def _compose(walls: _Walls, w: int, mA: np.ndarray, mb: np.ndarray, depth: int) 
         mb[depth + 1, r] = M[r, 0] * mb[depth, 0] + M[r, 1] * mb[depth, 1] + walls.b[w, r]
 
 
-@numba.njit(**NUMBA_FLAGS)
+@numba.njit(inline="always", **NUMBA_FLAGS)
 def _seen(A: np.ndarray, b: np.ndarray, keys: np.ndarray, n: int) -> bool:
     """Whether the map (A, b) is already among the first n accepted maps (same image)."""
     for j in range(n):
