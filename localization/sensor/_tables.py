@@ -90,6 +90,15 @@ class SensorTables:
         """The walls' symmetries (:func:`wall_symmetries`), computed once."""
         return wall_symmetries(self.walls)
 
+    @cached_property
+    def free_cells(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Row and column indices of the free cells (``np.nonzero(free_mask)``), computed
+        once: uniform draws over the free space come several times per block."""
+        iy, ix = np.nonzero(self.free_mask)
+        iy.setflags(write=False)
+        ix.setflags(write=False)
+        return iy, ix
+
     def free_at(self, xy_m: FloatArray) -> NDArray[np.bool_]:
         """Whether each point (n, 2) lies on a free cell (False off the map)."""
         return self._lookup(xy_m, self.free_mask)
@@ -325,7 +334,7 @@ def end_weights(walls: WallSet, end_sigma: FloatArray, wall_idx: NDArray[np.int6
 
 def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:
     """``n`` poses uniform over the free cells of the map, headings uniform in (-pi, pi]."""
-    iy, ix = np.nonzero(tables.free_mask)
+    iy, ix = tables.free_cells
     pick = rng.integers(0, iy.size, size=n)
     u = rng.random((n, 3))
     out = np.empty((n, 3))

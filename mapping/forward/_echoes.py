@@ -232,14 +232,29 @@ class EchoBatch:
 
 
 def _kernel_walls(walls: WallSet) -> _Walls:
-    seg = walls.segments_m
+    """The walls as the kernel sees them (end points, mirror maps, strengths), cached by
+    their coordinates and strengths: a filter asks for the same walls several times per
+    block (measured: 0.3 ms of a 10 ms update recomputing them)."""
+    seg = np.ascontiguousarray(walls.segments_m, dtype=np.float64)
+    strength = np.ascontiguousarray(walls.strength, dtype=np.float64)
+    return _walls_of(seg.tobytes(), seg.shape, strength.tobytes())
+
+
+@functools.lru_cache(maxsize=64)
+def _walls_of(segments: bytes, shape: tuple[int, ...], strengths: bytes) -> _Walls:
+    """:func:`_kernel_walls` of walls given as bytes (read-only arrays, shared between
+    calls)."""
+    seg = np.frombuffer(segments, dtype=np.float64).reshape(shape)
     d = seg[:, 1] - seg[:, 0]
     n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1)[:, None]
     A = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
     b = 2.0 * np.sum(seg[:, 0] * n, axis=1)[:, None] * n
-    return _Walls(np.ascontiguousarray(seg[:, 0]), np.ascontiguousarray(d),
-                  np.ascontiguousarray(A), np.ascontiguousarray(b),
-                  np.ascontiguousarray(walls.strength, dtype=np.float64))
+    out = _Walls(np.ascontiguousarray(seg[:, 0]), np.ascontiguousarray(d),
+                 np.ascontiguousarray(A), np.ascontiguousarray(b),
+                 np.frombuffer(strengths, dtype=np.float64).copy())
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def _limits(speed_m_s: float, config: SonarConfig, params: ForwardParams) -> _Limits:
