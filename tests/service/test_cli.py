@@ -177,7 +177,10 @@ def test_localize_never_converged_prints_strict_json_and_full_track_csv(
                                    [float(row["std_x_m"]), float(row["std_y_m"]),
                                     float(row["std_yaw_rad"])], rtol=1e-4)
         assert np.linalg.eigvalsh(cov).min() >= -1e-12
-        assert row["status"] == ("converged" if row["converged"] == "1" else "uncertain")
+        # the G model has no misfit count (never lost); a converged set is reported
+        # converged only once a global start is confirmed (FilterConfig.confirm_blocks)
+        assert row["status"] in ("converged", "uncertain")
+        assert row["converged"] == "1" or row["status"] == "uncertain"
         assert float(row["err_m"]) > 100.0
 
     assert main(base) == 0
