@@ -93,7 +93,9 @@ def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArr
     """Each pose (k, 3) moved to the best echo log-likelihood on a shrinking 3x3x3 stencil
     (``rounds`` halvings of ``step``); returns the poses and their log-likelihoods."""
     cur = np.asarray(poses, dtype=np.float64).copy()
-    best = explanation(tables, measurement, cur).log_likelihood if cur.shape[0] else np.zeros(0)
+    # the stencil holds its centre, so the first round scores the poses as they are
+    best = (explanation(tables, measurement, cur).log_likelihood
+            if cur.shape[0] and rounds <= 0 else np.zeros(0))
     h = np.asarray(step, dtype=np.float64)
     for _ in range(rounds):
         if cur.shape[0] == 0:
