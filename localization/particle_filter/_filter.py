@@ -291,20 +291,40 @@ def contradicts(pose: FloatArray, cov: FloatArray, reckoned: tuple[FloatArray, F
 
 def hold_jump(pose: FloatArray, cov: FloatArray,
               reckoned: tuple[FloatArray, FloatArray] | None, dwell: int,
-              config: FilterConfig) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
+              config: FilterConfig, evidence: float | None = None
+              ) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
     """The status of a block the filter would call ``converged``, against dead reckoning.
 
     ``reckoned``: the last converged estimate carried by the odometry (mean, covariance).
     An estimate that :func:`contradicts` it is ``uncertain`` for ``jump_dwell_blocks``
-    blocks (counted in ``dwell``), then accepted.
+    blocks (counted in ``dwell``), then accepted, but only once ``evidence`` (the blocks'
+    accumulated log-likelihood of the estimate over the best pose near the dead-reckoned
+    one, :func:`reckoned_evidence`; None: not known, the time rule alone) reaches
+    ``kidnap_prior_nats``: a jump to a look-alike that explains the blocks no better than
+    where the odometry puts the robot (a map missing walls there) is never accepted.
     Returns the status, the dead-reckoned pose to keep and the new count."""
     if reckoned is None or config.jump_dwell_blocks == 0:
         return "converged", reckoned, 0
     if not contradicts(pose, cov, reckoned, config):
         return "converged", reckoned, 0
-    if dwell + 1 >= config.jump_dwell_blocks:
+    if dwell + 1 >= config.jump_dwell_blocks and (
+            evidence is None or evidence >= config.kidnap_prior_nats):
         return "converged", reckoned, 0
     return "uncertain", reckoned, dwell + 1
+
+
+def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimate: float,
+                      reckoned: tuple[FloatArray, FloatArray], gap: float, memory: float
+                      ) -> tuple[float, FloatArray, float]:
+    """Evidence (nats) for a held jump: ``memory * gap + ll(estimate) - ll(best)``, ``best``
+    the pose near the dead-reckoned one that explains the block best (a shrinking stencil
+    from its mean, steps of its standard deviations clipped to 2-25 cm and 1-10 deg).
+    Returns the evidence, the best pose and its log-likelihood."""
+    sd = np.sqrt(np.maximum(np.diag(reckoned[1]), 0.0))
+    step = (float(np.clip(sd[0], 0.02, 0.25)), float(np.clip(sd[1], 0.02, 0.25)),
+            float(np.clip(sd[2], math.radians(1.0), math.radians(10.0))))
+    best, ll = _rivals.refine_poses(tables, measurement, reckoned[0][None, :], step, rounds=3)
+    return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0])
 
 
 def confirm_start(pose: FloatArray, cov: FloatArray,
@@ -372,6 +392,7 @@ class ParticleFilter:
         self.scatter = refine.Scatter.none()
         self.reckoned: tuple[FloatArray, FloatArray] | None = None
         self.dwell = 0
+        self.jump_gap = 0.0
         self.confirmed = False
         if pose is None:
             self.reset_global()
@@ -396,6 +417,7 @@ class ParticleFilter:
         self.track = None
         self.reckoned = None
         self.dwell = 0
+        self.jump_gap = 0.0
         self.confirmed = False
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
@@ -413,6 +435,7 @@ class ParticleFilter:
         c = np.asarray(cov, dtype=np.float64)
         self.reckoned = (np.asarray(pose, dtype=np.float64).copy(), c.copy())
         self.dwell = 0
+        self.jump_gap = 0.0
         self.confirmed = True
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -487,6 +510,7 @@ class ParticleFilter:
                                                 gate_rad)
         rivals = np.zeros((0, 3))
         alive = rivals
+        at_estimate: Explanation | None = None
         twin_gap = self.twin_gap
         held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
         if echo and meas is not None and meas.n_peaks:
@@ -515,9 +539,20 @@ class ParticleFilter:
                     refine.predict(self.reckoned[0], self.reckoned[1], speed_m_s,
                                    yaw_rate_rad_s, dt_s, cfg.motion))
         dwell, confirmed = self.dwell, self.confirmed
+        jump_gap, back = 0.0, np.zeros((0, 3))
         if status == "converged" and confirmed:
+            evidence = None
+            if (echo and meas is not None and at_estimate is not None and reckoned is not None
+                    and contradicts(estimate.pose, estimate.cov, reckoned, cfg)):
+                evidence, best, _ = reckoned_evidence(
+                    self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
+                    self.jump_gap, cfg.rival_memory)
+                if evidence < cfg.kidnap_prior_nats:
+                    back = best[None, :]   # the dead-reckoned pose explains as well: keep it
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
-                                                cfg)
+                                                cfg, evidence)
+            if status == "uncertain" and evidence is not None:
+                jump_gap = evidence
         elif status == "converged":
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg)
@@ -525,7 +560,10 @@ class ParticleFilter:
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
         low_ess = ess < cfg.resample_ess_fraction * poses.shape[0]
-        if meas is not None and (reseed or rivals.shape[0] or low_ess):
+        if back.shape[0] and cfg.relocalize:
+            # a held jump the blocks do not prefer: particles go back where the odometry says
+            alive = np.vstack([alive, back])
+        if meas is not None and (reseed or rivals.shape[0] or low_ess or back.shape[0]):
             n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
@@ -588,6 +626,7 @@ class ParticleFilter:
         if estimate.status == "converged":
             reckoned = (estimate.pose.copy(), estimate.cov.copy())   # the reported pose
         self.reckoned, self.dwell, self.confirmed = reckoned, dwell, confirmed
+        self.jump_gap = jump_gap
         self.twin_gap = twin_gap
         self.rivals = held
         if meas is not None:
@@ -656,6 +695,7 @@ class ParticleFilter:
                              else self.reckoned[1].copy()),
             "dwell": np.array(self.dwell, dtype=np.int64),
             "confirmed": np.array(self.confirmed),
+            "jump_gap": np.array(self.jump_gap, dtype=np.float64),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
 
@@ -702,6 +742,7 @@ class ParticleFilter:
         # checkpoints from before the confirmation: a filter that had converged is confirmed
         pf.confirmed = (bool(state["confirmed"]) if "confirmed" in state
                         else pf.reckoned is not None)
+        pf.jump_gap = float(state["jump_gap"]) if "jump_gap" in state else 0.0
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(
                 np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),

@@ -27,6 +27,7 @@ from localization.particle_filter._filter import (  # not exported: tested direc
     confirm_start,
     hold_jump,
     propose,
+    reckoned_evidence,
 )
 from localization.sensor import (
     SensorConfig,
@@ -206,6 +207,42 @@ def test_a_jump_against_dead_reckoning_is_held_then_accepted() -> None:
     assert hold_jump(far, tight, reckoned, 0, off)[0] == "converged"
     with pytest.raises(ValueError, match="^jump_dwell_blocks must be"):
         FilterConfig(jump_dwell_blocks=-1)
+
+
+def test_a_held_jump_needs_evidence_against_the_dead_reckoned_pose() -> None:
+    """With the evidence known, the time rule is not enough: below kidnap_prior_nats the jump
+    stays uncertain however long it is held (a look-alike that explains the blocks no
+    better than where the odometry puts the robot); above, it is accepted after the dwell."""
+    config = dataclasses.replace(CONFIG, jump_dwell_blocks=3, kidnap_prior_nats=5.0)
+    tight = np.diag([0.02**2, 0.02**2, math.radians(2.0) ** 2])
+    reckoned = (np.array([1.0, 1.0, 0.0]), tight)
+    far = np.array([4.0, 2.0, 3.0])
+    dwell, seen = 0, []
+    for _ in range(8):
+        status, _, dwell = hold_jump(far, tight, reckoned, dwell, config, evidence=1.0)
+        seen.append(status)
+    assert seen == ["uncertain"] * 8 and dwell == 8
+    assert hold_jump(far, tight, reckoned, dwell, config, evidence=6.0)[0] == "converged"
+    assert hold_jump(far, tight, reckoned, 0, config, evidence=60.0)[0] == "uncertain"
+
+
+def test_reckoned_evidence_tells_where_the_robot_is(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """Ground truth: a dead-reckoned pose a few cm off the truth is refined onto it and
+    explains the block as well as the truth (no evidence for a jump away from it); one
+    2 m away does not (evidence far above the kidnap prior). Memory discounts the past."""
+    truth, hms = track
+    k = 6
+    meas = prepare_measurement(hms[k], ECHO)
+    ll_truth = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
+    near = (truth[k] + np.array([0.03, -0.02, math.radians(2.0)]), TIGHT)
+    ev, best, ll = reckoned_evidence(tables, meas, ll_truth, near, 0.0, 0.9)
+    assert abs(ev) < 1.0 and float(np.hypot(*(best[:2] - truth[k][:2]))) < 0.02
+    away = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)
+    ev_far, _, _ = reckoned_evidence(tables, meas, ll_truth, away, 0.0, 0.9)
+    assert ev_far > 5.0
+    ev_mem, _, _ = reckoned_evidence(tables, meas, ll_truth, near, 10.0, 0.9)
+    assert ev_mem == pytest.approx(9.0 + ev, abs=1e-9)
 
 
 def test_a_global_start_is_confirmed_only_by_agreeing_blocks() -> None:
