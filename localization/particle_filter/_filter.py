@@ -291,7 +291,8 @@ def contradicts(pose: FloatArray, cov: FloatArray, reckoned: tuple[FloatArray, F
 
 def hold_jump(pose: FloatArray, cov: FloatArray,
               reckoned: tuple[FloatArray, FloatArray] | None, dwell: int,
-              config: FilterConfig, evidence: float | None = None
+              config: FilterConfig, evidence: float | None = None,
+              far: bool | None = None
               ) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
     """The status of a block the filter would call ``converged``, against dead reckoning.
 
@@ -302,10 +303,11 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
     one, :func:`reckoned_evidence`; None: not known, the time rule alone) reaches
     ``kidnap_prior_nats``: a jump to a look-alike that explains the blocks no better than
     where the odometry puts the robot (a map missing walls there) is never accepted.
-    Returns the status, the dead-reckoned pose to keep and the new count."""
+    ``far``: :func:`contradicts` when the caller has computed it. Returns the status, the
+    dead-reckoned pose to keep and the new count."""
     if reckoned is None or config.jump_dwell_blocks == 0:
         return "converged", reckoned, 0
-    if not contradicts(pose, cov, reckoned, config):
+    if not (contradicts(pose, cov, reckoned, config) if far is None else far):
         return "converged", reckoned, 0
     if dwell + 1 >= config.jump_dwell_blocks and (
             evidence is None or evidence >= config.kidnap_prior_nats):
@@ -542,15 +544,17 @@ class ParticleFilter:
         jump_gap, back = 0.0, np.zeros((0, 3))
         if status == "converged" and confirmed:
             evidence = None
-            if (echo and meas is not None and at_estimate is not None and reckoned is not None
-                    and contradicts(estimate.pose, estimate.cov, reckoned, cfg)):
+            far = reckoned is not None and contradicts(estimate.pose, estimate.cov, reckoned,
+                                                       cfg)
+            if (far and echo and meas is not None and at_estimate is not None
+                    and reckoned is not None):
                 evidence, best, _ = reckoned_evidence(
                     self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
                     self.jump_gap, cfg.rival_memory)
                 if evidence < cfg.kidnap_prior_nats:
                     back = best[None, :]   # the dead-reckoned pose explains as well: keep it
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
-                                                cfg, evidence)
+                                                cfg, evidence, far)
             if status == "uncertain" and evidence is not None:
                 jump_gap = evidence
         elif status == "converged":
