@@ -107,6 +107,10 @@ class PoseEstimate:
         Whether ``pose`` and ``cov`` come from the Gaussian refinement of the converged mode
         (:mod:`localization.refine`) rather than from the particles of that mode (``modes``
         always hold the particles' view).
+    reckoned : bool
+        Whether ``pose`` and ``cov`` are dead reckoning from the last confirmed convergence
+        (never with status ``converged``): the particles' mode lies far from it and the
+        blocks do not prefer it by the prior odds of a kidnap (``modes`` hold it).
     """
 
     pose: FloatArray
@@ -124,6 +128,7 @@ class PoseEstimate:
     fit: float = math.nan
     covered: bool = True
     refined: bool = False
+    reckoned: bool = False
 
 
 

@@ -248,6 +248,10 @@ class Estimate(BaseModel):
     refined: bool = Field(False, description="pose and covariance come from the Gaussian "
                           "refinement of the converged mode on the block's echoes (echo model) "
                           "rather than from the particles; modes are always the particles'")
+    reckoned: bool = Field(False, description="pose and covariance are dead reckoning from the "
+                           "last confirmed convergence (status never converged): the particles "
+                           "went to a look-alike the blocks do not prefer by the prior odds of "
+                           "a kidnap, or where the map predicts no echo; modes hold it")
     processing_ms: float = Field(description="server time for this update")
 
 

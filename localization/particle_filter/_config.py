@@ -106,7 +106,20 @@ class FilterConfig:
         mapped walls was lost, then re-localized onto a look-alike that explained the blocks
         as well as the truth would and reported ``converged`` metres off for up to 15
         blocks); the blocks cannot tell which, so a jump must hold before it is trusted.
-        The estimate itself moves at once: the position recovers as fast as before.
+        The estimate itself moves at once when the blocks prefer it by ``kidnap_prior_nats``
+        (see ``report_reckoned``).
+    report_reckoned : bool
+        Echo model: while the particles' mode contradicts dead reckoning and the blocks do
+        not prefer it over the best pose near the dead-reckoned one by ``kidnap_prior_nats``
+        (evidence discounted by ``rival_memory``), report the dead-reckoned pose and its covariance
+        (``PoseEstimate.reckoned``, status never ``converged``) instead of the look-alike.
+    min_map_echoes : int
+        A block counts as evidence for a jump only where the map predicts at least this
+        many specular echoes at the dead-reckoned pose (0: everywhere). Where it predicts
+        fewer, the map is silent (walls the mapping run never heard): a look-alike explaining
+        the block better is no sign of a kidnap (measured on the fresh14d gallery's built
+        map: the truth beyond the mapped walls' ends, no echo predicted there, a look-alike
+        5.6 m away preferred by 8 nats a block).
     confirm_blocks : int
         A global start has no dead reckoning to hold a jump against: its first ``converged``
         estimate is reported ``uncertain`` until it has been ``converged`` on this many
@@ -189,6 +202,8 @@ class FilterConfig:
     anchor_gate_deg: float = 30.0
     kidnap_prior_nats: float = 5.0
     jump_dwell_blocks: int = 10
+    report_reckoned: bool = True
+    min_map_echoes: int = 2
     confirm_blocks: int = 4
     twin_margin_nats: float = 3.0
     twin_memory: float = 0.8
@@ -251,6 +266,11 @@ class FilterConfig:
                 and 0 <= self.jump_dwell_blocks <= 1000):
             raise ValueError(
                 f"jump_dwell_blocks must be an integer in [0, 1000], got {self.jump_dwell_blocks}")
+        if not isinstance(self.report_reckoned, bool):
+            raise ValueError(f"report_reckoned must be true or false, got {self.report_reckoned!r}")
+        if not (isinstance(self.min_map_echoes, int) and 0 <= self.min_map_echoes <= 100):
+            raise ValueError(
+                f"min_map_echoes must be an integer in [0, 100], got {self.min_map_echoes}")
         if not (isinstance(self.confirm_blocks, int) and 0 <= self.confirm_blocks <= 1000):
             raise ValueError(
                 f"confirm_blocks must be an integer in [0, 1000], got {self.confirm_blocks}")

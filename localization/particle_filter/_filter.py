@@ -57,6 +57,7 @@ from localization.sensor import (
     explanation,
     log_likelihood,
     pose_log_likelihood,
+    predicted_echoes,
     prepare_measurement,
     score_poses,
     symmetric_poses,
@@ -316,17 +317,35 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
 
 
 def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimate: float,
-                      reckoned: tuple[FloatArray, FloatArray], gap: float, memory: float
-                      ) -> tuple[float, FloatArray, float]:
+                      reckoned: tuple[FloatArray, FloatArray], gap: float, memory: float,
+                      min_echoes: int = 0) -> tuple[float, FloatArray, float]:
     """Evidence (nats) for a held jump: ``memory * gap + ll(estimate) - ll(best)``, ``best``
     the pose near the dead-reckoned one that explains the block best (a shrinking stencil
     from its mean, steps of its standard deviations clipped to 2-25 cm and 1-10 deg).
+
+    Where the map predicts fewer than ``min_echoes`` specular echoes at ``best`` (a place
+    the map has no walls for: beyond its mapped walls' ends or out of their range), the
+    block is no evidence: that the pose explains it badly says the map is silent there, not
+    that the robot was carried away; the evidence is ``memory * gap``.
     Returns the evidence, the best pose and its log-likelihood."""
     sd = np.sqrt(np.maximum(np.diag(reckoned[1]), 0.0))
     step = (float(np.clip(sd[0], 0.02, 0.25)), float(np.clip(sd[1], 0.02, 0.25)),
             float(np.clip(sd[2], math.radians(1.0), math.radians(10.0))))
     best, ll = _rivals.refine_poses(tables, measurement, reckoned[0][None, :], step, rounds=3)
+    if min_echoes > 0 and map_echoes(tables, measurement.speed_m_s, best[0]) < min_echoes:
+        return memory * gap, best[0], float(ll[0])
     return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0])
+
+
+def map_echoes(tables: SensorTables, speed_m_s: float, pose: FloatArray) -> int:
+    """How many specular (first-order) echoes the map's walls give at ``pose`` within the
+    sensor's range: how much the map can say about a block heard there."""
+    if tables.walls.n == 0:
+        return 0
+    b, _ = predicted_echoes(tables, speed_m_s, np.asarray(pose, dtype=np.float64)[None, :],
+                            parallel=False)
+    k = int(b.count[0])
+    return int(np.sum(b.order[0, :k] == 1))
 
 
 def confirm_start(pose: FloatArray, cov: FloatArray,
@@ -542,26 +561,35 @@ class ParticleFilter:
                                    yaw_rate_rad_s, dt_s, cfg.motion))
         dwell, confirmed = self.dwell, self.confirmed
         jump_gap, back = 0.0, np.zeros((0, 3))
-        if status == "converged" and confirmed:
-            evidence = None
-            far = reckoned is not None and contradicts(estimate.pose, estimate.cov, reckoned,
-                                                       cfg)
-            if (far and echo and meas is not None and at_estimate is not None
-                    and reckoned is not None):
+        # the particles' estimate against dead reckoning from the last confirmed convergence:
+        # far from it, the blocks must prefer it by the kidnap prior before it is believed
+        evidence: float | None = None
+        far = confirmed and reckoned is not None and contradicts(estimate.pose, estimate.cov,
+                                                                 reckoned, cfg)
+        if far and reckoned is not None:
+            if echo and meas is not None and at_estimate is not None:
                 evidence, best, _ = reckoned_evidence(
                     self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
-                    self.jump_gap, cfg.rival_memory)
+                    self.jump_gap, cfg.rival_memory, cfg.min_map_echoes)
                 if evidence < cfg.kidnap_prior_nats:
                     back = best[None, :]   # the dead-reckoned pose explains as well: keep it
+            jump_gap = self.jump_gap if evidence is None else evidence
+        if status == "converged" and confirmed:
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
                                                 cfg, evidence, far)
-            if status == "uncertain" and evidence is not None:
-                jump_gap = evidence
         elif status == "converged":
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg)
             confirmed = status == "converged"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
+        particles_pose = estimate.pose
+        if (cfg.report_reckoned and far and reckoned is not None and status != "converged"
+                and self.tables.config.model == "echo" and jump_gap < cfg.kidnap_prior_nats):
+            # a jump the blocks do not prefer (a map missing walls here, a look-alike): the
+            # answer is where the odometry puts the robot, with its growing covariance
+            estimate = dataclasses.replace(
+                estimate, pose=reckoned[0].copy(), cov=reckoned[1].copy(), reckoned=True,
+                covered=bool(self.tables.covered(reckoned[0][None, :2])[0]))
         reseed = echo and cfg.relocalize and misfits > 0 and meas is not None
         low_ess = ess < cfg.resample_ess_fraction * poses.shape[0]
         if back.shape[0] and cfg.relocalize:
@@ -626,7 +654,7 @@ class ParticleFilter:
         self.n_steps += 1
         self.misfits = misfits
         self.anchored = anchored
-        self.last_pose = estimate.pose.copy()
+        self.last_pose = (particles_pose if estimate.reckoned else estimate.pose).copy()
         if estimate.status == "converged":
             reckoned = (estimate.pose.copy(), estimate.cov.copy())   # the reported pose
         self.reckoned, self.dwell, self.confirmed = reckoned, dwell, confirmed

@@ -139,6 +139,7 @@ TRACK_CSV_COLUMNS = (
     "block", "x_m", "y_m", "yaw_rad", "std_x_m", "std_y_m", "std_yaw_rad", "ess", "converged",
     "n_modes", "direction_observable", "err_m", "err_rad",
     "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "status", "refined",
+    "reckoned",
 )
 """Columns of the ``localize --out`` track CSV (documented in docs/formats.md)."""
 
@@ -151,7 +152,8 @@ def _track_row(k: int, est: PoseEstimate, err: tuple[float, float]) -> list[Any]
     sd = np.sqrt(np.clip(np.diag(est.cov), 0.0, None))
     upper = est.cov[np.triu_indices(3)]          # xx, xy, xyaw, yy, yyaw, yawyaw
     return [k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
-            int(est.direction_observable), *err, *upper, track_status(est), int(est.refined)]
+            int(est.direction_observable), *err, *upper, track_status(est), int(est.refined),
+            int(est.reckoned)]
 
 
 def _track_csv(rows: list[list[Any]]) -> str:

@@ -103,7 +103,8 @@ def estimate_model(session_id: str, seq: int | None, est: PoseEstimate,
         direction_observable=bool(est.direction_observable),
         likelihood_scale=float(est.likelihood_scale), status=est.status,  # type: ignore[arg-type]
         fit=None if math.isnan(est.fit) else float(est.fit), covered=bool(est.covered),
-        refined=bool(est.refined), processing_ms=float(processing_ms),
+        refined=bool(est.refined), reckoned=bool(est.reckoned),
+        processing_ms=float(processing_ms),
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -204,6 +205,10 @@ def test_estimate_json_roundtrip_is_exact(tmp_path: Path) -> None:
     back = estimate_from_json(json.loads(json.dumps(d)))
     assert estimate_to_json(back) == d
     np.testing.assert_array_equal(back.modes[0].cov, s.estimate.modes[0].cov)
+    flagged = dataclasses.replace(s.estimate, reckoned=True, refined=False)
+    assert estimate_from_json(json.loads(json.dumps(estimate_to_json(flagged)))).reckoned
+    old = {k: v for k, v in d.items() if k != "reckoned"}       # written before the flag
+    assert estimate_from_json(old).reckoned is False
 
 
 def test_format_1_checkpoint_still_loads(tmp_path: Path) -> None:

@@ -26,6 +26,7 @@ from localization.particle_filter._filter import (  # not exported: tested direc
     block_status,
     confirm_start,
     hold_jump,
+    map_echoes,
     propose,
     reckoned_evidence,
 )
@@ -243,6 +244,78 @@ def test_reckoned_evidence_tells_where_the_robot_is(
     assert ev_far > 5.0
     ev_mem, _, _ = reckoned_evidence(tables, meas, ll_truth, near, 10.0, 0.9)
     assert ev_mem == pytest.approx(9.0 + ev, abs=1e-9)
+
+
+def test_map_echoes_counts_the_specular_points_in_range() -> None:
+    """Geometry: one 4 m wall along y = 0 has a specular point for a pose above it (foot of
+    the perpendicular on the segment, 1 m away), none beyond its end (foot off the segment)
+    or out of the sensor's range; the room has one per wall the pose sees."""
+    wall = build_tables(wallmap_from_walls(np.array([[0.0, 0.0, 4.0, 0.0]])), ECHO)
+    assert map_echoes(wall, 0.2, np.array([2.0, 1.0, 0.3])) == 1
+    assert map_echoes(wall, 0.2, np.array([6.0, 1.0, 0.3])) == 0
+    assert map_echoes(wall, 0.2, np.array([2.0, ECHO.max_range_m + 1.0, 0.3])) == 0
+    room = build_tables(wallmap_from_walls(ROOM), ECHO)
+    # west, south, north walls and the north stub's end face: the east wall's foot (6, 1.2)
+    # and the cut corner are seen too, the south stub hides nothing from here
+    n = map_echoes(room, 0.2, np.array([1.0, 1.2, 0.0]))
+    assert 4 <= n <= ROOM.shape[0]
+
+
+def test_a_silent_map_gives_no_evidence_for_a_jump(tables: SensorTables,
+                                                   track: tuple[FloatArray, list[HeatMap]]
+                                                   ) -> None:
+    """Where the map predicts fewer than ``min_echoes`` specular echoes at the dead-reckoned
+    pose, a block the estimate explains far better adds nothing: the evidence is the
+    remembered part only (the same block with the gate off: far above the kidnap prior)."""
+    truth, hms = track
+    k = 6
+    meas = prepare_measurement(hms[k], ECHO)
+    ll_truth = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
+    outside = (np.array([30.0, 30.0, 0.0]), TIGHT)          # far beyond the room's walls
+    open_gate, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 0.0, 0.9)
+    assert open_gate > 5.0
+    gated, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 4.0, 0.9, min_echoes=2)
+    assert gated == pytest.approx(0.9 * 4.0)
+    inside = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)  # the map speaks there
+    a, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9)
+    b, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9, min_echoes=2)
+    assert a == b > 5.0
+    with pytest.raises(ValueError, match="^min_map_echoes must be"):
+        FilterConfig(min_map_echoes=-1)
+    with pytest.raises(ValueError, match="^report_reckoned must be"):
+        FilterConfig(report_reckoned=1)  # type: ignore[arg-type]
+
+
+def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None:
+    """A map of one room; the robot, tracked from its true start, drives in an identical
+    room 12 m east that the map does not hold (a hotel corridor with one room mapped). The
+    map predicts no echo there, and a look-alike in the mapped room explains every block.
+    The filter must not believe the look-alike: it reports the dead-reckoned pose (exact
+    odometry here: the truth) with ``reckoned`` set, never ``converged``. Control: with
+    the gate off (``min_map_echoes`` 0) the look-alike is accepted, ``converged`` 12 m off."""
+    shift = np.array([12.0, 0.0, 12.0, 0.0])
+    odo: Odometry = [(0.15, 0.0)] * 4 + [(0.15, 0.25)] * 8
+    truth = trajectory(START + np.array([12.0, 0.0, 0.0]), odo, DT)
+    walls = WallSet.from_array(ROOM + shift)
+    hms = [predicted_heatmap(walls, p, 0.15, SONAR) for p in truth]
+    tables = build_tables(wallmap_from_walls(ROOM, margin_m=15.0), ECHO)
+
+    def run(config: FilterConfig) -> list[PoseEstimate]:
+        pf = ParticleFilter(tables, config, np.random.default_rng(3), pose=truth[0], cov=TIGHT)
+        return [pf.step(hm, *((odo[k - 1] if k else (0.15, 0.0)) + ((DT if k else 0.0),)))
+                for k, hm in enumerate(hms)]
+
+    config = dataclasses.replace(CONFIG, jump_dwell_blocks=3)
+    gated = run(config)
+    assert all(_error_m(e, t) < 0.1 for e, t in zip(gated, truth, strict=True))
+    assert all(e.status != "converged" for e in gated)
+    assert any(e.reckoned for e in gated)               # the particles did leave
+    away = [e for e in gated if e.reckoned]
+    assert all(any(float(np.hypot(*(m.mean[:2] - e.pose[:2]))) > 5.0 for m in e.modes)
+               for e in away)                           # ... and the modes say where to
+    control = run(dataclasses.replace(config, min_map_echoes=0))
+    assert any(e.status == "converged" and _error_m(e, t) > 5.0
+               for e, t in zip(control, truth, strict=True))
 
 
 def test_a_global_start_is_confirmed_only_by_agreeing_blocks() -> None:
