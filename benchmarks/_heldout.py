@@ -6,7 +6,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
-                              | "fresh14d" | "fresh14e"},
+                              | "fresh14d" | "fresh14e" | "fresh14f"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -17,9 +17,10 @@ benchmark maps. ``group`` (default ``"held-out"``) sorts the paths for the bench
 while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization code was
 tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
 ``"fresh14c"`` after the Gaussian refinement, ``"fresh14d"`` after the echo model began
-comparing levels and ``"fresh14e"`` after the fresh14d rerun, before any measurement with the
-filter's next change (nothing was run on any of these before they were committed). This
-loader lives here, not in ``mapping``, so the package never reads files by path.
+comparing levels, ``"fresh14e"`` after the fresh14d rerun, before any measurement with the
+filter's next change, and ``"fresh14f"`` after the filter's silent-map rule, before any
+measurement of it on new rooms (nothing was run on any of these before they were committed).
+This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from mapping.scene import Scene
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
-               "fresh14e")
+               "fresh14e", "fresh14f")
 
 
 @dataclass(frozen=True)

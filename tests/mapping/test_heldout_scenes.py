@@ -26,6 +26,7 @@ FRESH14B = ("studio", "ward", "chapel")  # written after the rivals: group "fres
 FRESH14C = ("workshop", "atrium")  # written after the refinement: group "fresh14c"
 FRESH14D = ("gallery", "depot")  # written after the levels: group "fresh14d"
 FRESH14E = ("foyer", "annex")  # written after the fresh14d rerun: group "fresh14e"
+FRESH14F = ("vestry", "landing")  # written after the silent-map rule: group "fresh14f"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -61,6 +62,9 @@ INTERIOR = {
     "foyer": [(2.0, 0.0), (8.0, 0.0), (8.0, 3.4), (3.4, 3.4), (3.4, 7.8), (0.0, 7.8),
               (0.0, 2.0)],
     "annex": [(0.0, 0.0), (8.0, 0.0), (8.0, 0.8), (8.0, 2.6), (0.0, 4.6)],
+    "vestry": [(0.0, 0.0), (7.2, 0.6), (8.0, 5.4), (4.4, 3.4), (0.8, 5.9)],
+    "landing": [(1.0, 0.0), (3.8, 0.0), (3.8, 4.0), (7.6, 4.0), (7.6, 8.8), (0.0, 8.8),
+                (0.0, 4.0), (1.0, 4.0)],
 }
 
 
@@ -97,6 +101,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
+    assert set(FRESH14F) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -104,7 +109,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14b" if spec.scene in FRESH14B
                     else "fresh14c" if spec.scene in FRESH14C
                     else "fresh14d" if spec.scene in FRESH14D
-                    else "fresh14e" if spec.scene in FRESH14E else "held-out")
+                    else "fresh14e" if spec.scene in FRESH14E
+                    else "fresh14f" if spec.scene in FRESH14F else "held-out")
         assert spec.group == expected
 
 
@@ -192,6 +198,38 @@ def test_foyer_is_near_its_diagonal_mirror_and_annex_tapers_to_an_open_end() -> 
     assert abs(distance_to_walls(np.array([[8.0, 1.7]]), annex.segments())[0] - 0.9) < 1e-9
 
 
+def test_vestry_has_no_right_angle_and_landing_a_neck_an_open_end_and_a_pillar() -> None:
+    vestry = heldout_scene("vestry")
+    walls = {w.name: w for w in vestry.walls}
+    outline = np.array(INTERIOR["vestry"])
+    edges = np.roll(outline, -1, axis=0) - outline
+    u = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+    v = np.roll(u, 1, axis=0)  # the wall arriving at each corner
+    turn = np.degrees(np.arctan2(v[:, 0] * u[:, 1] - v[:, 1] * u[:, 0], np.sum(v * u, axis=1)))
+    interior = 180.0 - turn  # at each corner, counter-clockwise outline
+    assert np.all(np.abs(interior - 90.0) > 10.0) and np.sum(interior > 180.0) == 1  # one reflex
+    assert np.all((np.linalg.norm(edges, axis=1) >= 3.0) & (np.linalg.norm(edges, axis=1) <= 8.0))
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east": 0.8, "north-west": 0.6, "screen": 0.7}
+    screen = walls["screen"]
+    assert 1.0 <= screen.length_m <= 1.5
+    others = np.array([vestry.segments()[k] for k, n in enumerate(walls) if n != "screen"])
+    ends = np.array([screen.start, screen.end], dtype=np.float64)
+    assert distance_to_walls(ends, others).min() > 1.0  # both ends free
+    landing = heldout_scene("landing")
+    walls = {w.name: w for w in landing.walls}
+    assert abs(walls["passage east"].start[0] - walls["passage west"].start[0] - 2.8) < 1e-9
+    assert abs(walls["room south east"].start[0] - walls["room south west"].end[0]
+               - 2.0) < 1e-9                       # the doorway, narrower than the passage
+    # the south end is open from x = 1.0 to 3.8: its middle is 1.4 m from every wall
+    assert abs(distance_to_walls(np.array([[2.4, 0.0]]), landing.segments())[0] - 1.4) < 1e-9
+    pillar = np.array([landing.segments()[k] for k, n in enumerate(walls)
+                       if n.startswith("pillar")])
+    assert len(pillar) == 4 and np.allclose(pillar[:, 1], np.roll(pillar[:, 0], -1, axis=0))
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "passage east": 0.5, "room east": 0.9}
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -209,7 +247,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
     clearance = {"fresh": FRESH_CLEARANCE_M, "fresh14b": FRESH14B_CLEARANCE_M,
                  "fresh14c": FRESH14B_CLEARANCE_M,
                  "fresh14d": FRESH14B_CLEARANCE_M,
-                 "fresh14e": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14e": FRESH14B_CLEARANCE_M,
+                 "fresh14f": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
