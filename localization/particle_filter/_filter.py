@@ -350,17 +350,23 @@ def map_echoes(tables: SensorTables, speed_m_s: float, pose: FloatArray) -> int:
 
 def confirm_start(pose: FloatArray, cov: FloatArray,
                   candidate: tuple[FloatArray, FloatArray] | None, count: int,
-                  config: FilterConfig) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
+                  config: FilterConfig, fit: float = math.nan
+                  ) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
     """The status of a global start's block the filter would call ``converged`` before its
     first convergence is confirmed (``FilterConfig.confirm_blocks``).
 
     ``candidate``: the previous such estimate carried by the odometry (None at the first);
     ``count``: how many agreeing ones led to it. An estimate that does not
     :func:`contradict <contradicts>` the candidate adds one, one that does starts again at
-    one. Returns ``converged`` once the count reaches ``confirm_blocks`` (then the count is
-    0), else ``uncertain`` with this estimate as the next candidate."""
+    one; one whose block ``fit`` (echo model; NaN: not known) is below
+    ``FilterConfig.confirm_fit`` does not count (it keeps the count when it agrees, else
+    starts again at zero). Returns ``converged`` once the count reaches ``confirm_blocks``
+    (then the count is 0), else ``uncertain`` with this estimate as the next candidate."""
     agree = candidate is not None and not contradicts(pose, cov, candidate, config)
-    count = count + 1 if agree else 1
+    if math.isfinite(fit) and fit < config.confirm_fit:
+        count = count if agree else 0
+    else:
+        count = count + 1 if agree else 1
     if count >= config.confirm_blocks:
         return "converged", candidate, 0
     return "uncertain", (np.array(pose, dtype=np.float64), np.array(cov, dtype=np.float64)), count
@@ -579,7 +585,7 @@ class ParticleFilter:
                                                 cfg, evidence, far)
         elif status == "converged":
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
-                                                    dwell, cfg)
+                                                    dwell, cfg, fit)
             confirmed = status == "converged"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         particles_pose = estimate.pose

@@ -344,6 +344,28 @@ def test_a_global_start_is_confirmed_only_by_agreeing_blocks() -> None:
         FilterConfig(confirm_blocks=-1)
 
 
+def test_a_global_start_is_confirmed_only_by_well_explained_blocks() -> None:
+    """``confirm_start`` with the block's fit: an agreeing estimate whose block is explained
+    below ``confirm_fit`` neither counts nor resets the count (a look-alike that explains
+    part of the echoes never confirms, however long it agrees); a contradicting one with a
+    poor fit starts from zero; NaN (the G models, a block without echoes) counts as before."""
+    config = dataclasses.replace(CONFIG, confirm_blocks=3, confirm_fit=0.7)
+    tight = np.diag([0.02**2, 0.02**2, math.radians(2.0) ** 2])
+    here = np.array([1.0, 1.0, 0.0])
+    cand, count, seen = None, 0, []
+    for fit in (0.9, 0.5, 0.6, 0.5):
+        status, cand, count = confirm_start(here, tight, cand, count, config, fit)
+        seen.append((status, count))
+    assert seen == [("uncertain", 1)] * 4
+    assert confirm_start(here, tight, cand, count, config, 0.75)[::2] == ("uncertain", 2)
+    assert confirm_start(here, tight, cand, 2, config, 0.8)[::2] == ("converged", 0)
+    there = np.array([4.0, 2.0, 3.0])
+    assert confirm_start(there, tight, cand, 2, config, 0.5)[::2] == ("uncertain", 0)
+    assert confirm_start(here, tight, cand, 2, config, math.nan)[::2] == ("converged", 0)
+    with pytest.raises(ValueError, match="^confirm_fit must be"):
+        FilterConfig(confirm_fit=1.5)
+
+
 def test_a_global_start_says_converged_only_after_confirmation(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
     """End to end on the ideal map: a global start reports its first ``converged`` no earlier
