@@ -688,8 +688,10 @@ def _check_joins(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
     """Undo a corner join whose added piece of wall would have been heard and was not.
 
     A corner echo says two walls meet, but not that the wall is solid all the way to the
-    corner: an opening (a side corridor) between the heard part and the corner would
-    give no echo where the forward model, with the piece in place, predicts one.
+    corner: an opening (a side corridor, a doorway) between the heard part and the corner
+    would give no echo where the forward model, with the piece in place, predicts one.
+    The piece is tested against the wall *as heard* (without its extension): with the
+    extension in place the joined wall itself would take the piece's echoes.
     """
     for w in kept:
         for end in (0, 1):
@@ -700,7 +702,9 @@ def _check_joins(kept: list[_Wall], obs: PeakObservations, config: SonarConfig,
             if np.hypot(*(new - old)) < params.gap_m:
                 continue
             piece = _Wall(w.cand, old.copy(), new.copy(), -1, w.strength)
-            ws = _wallset([*kept, piece], pad_m=0.0)
+            heard_part = _Wall(w.cand, *((old.copy(), w.b.copy()) if end == 0
+                                         else (w.a.copy(), old.copy())), w.group, w.strength)
+            ws = _wallset([*(heard_part if o is w else o for o in kept), piece], pad_m=0.0)
             predicted, heard = heard_blocks(obs, ws, len(kept), config, params.range_tol_m,
                                             2 * params.cos_tol, params.peaks.snr,
                                             params.peaks.min_relative,

@@ -192,13 +192,6 @@ def test_a_map_that_explains_little_says_so(shoebox_map) -> None:
     assert "explain only" in one.warning
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known defect, not fixed: _check_joins builds its wall set with the joined wall already "
-    "extended, so the piece's echoes go to that wall and the check never undoes a join. "
-    "Fixing it (the wall as heard plus the piece) opens this doorway and removes kitchen's "
-    "island-to-north-wall wall, but on the localization benchmark's 30 older runs built maps "
-    "got worse: converged while wrong 56 -> 96 (alcove 0 -> 20, kitchen 34 -> 49), ward-line "
-    "and studio-bay lost; the check's heard_share rule needs rework first"))
 def test_a_corner_join_does_not_seal_an_unheard_doorway() -> None:
     """Ground truth: the fresh14f landing's room has a 2 m doorway in its south wall
     (x 1.4-3.4 at y = 4) that the mapped curve passes above without ever hearing a wall
