@@ -57,6 +57,10 @@ class SensorTables:
     wall_sigma : ndarray, shape (n_walls, 3)
         1-sigma uncertainty of each wall (``WallMap.wall_sigma``: normal offset m, angle
         rad, endpoints m), 0 where the map has none (an ideal map).
+    complete : bool
+        Whether the map claims every wall: a map made from geometry (a floor plan, a scene)
+        rather than built from runs, which holds only the walls they heard (``WallMap``
+        provenance lists its runs).
     """
 
     config: SensorConfig
@@ -78,6 +82,7 @@ class SensorTables:
     sonar: SonarConfig = field(default_factory=SonarConfig)
     coverage: NDArray[np.bool_] | None = None
     wall_sigma: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    complete: bool = False
 
     @cached_property
     def soft_ends(self) -> tuple[WallSet, FloatArray]:
@@ -211,6 +216,7 @@ def build_tables(
         sonar=SonarConfig() if sonar is None else sonar,
         coverage=np.asarray(wall_map.coverage, dtype=bool),
         wall_sigma=np.nan_to_num(np.asarray(wall_map.wall_sigma, dtype=np.float64).reshape(-1, 3)),
+        complete=not wall_map.provenance.get("runs"),
     )
 
 

@@ -286,6 +286,35 @@ def test_a_silent_map_gives_no_evidence_for_a_jump(tables: SensorTables,
         FilterConfig(report_reckoned=1)  # type: ignore[arg-type]
 
 
+def test_walls_missing_from_the_map_give_no_evidence_for_a_jump(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """A built map lacking walls the robot hears (here the north wall and its stub): at the
+    true pose every echo the map predicts is heard, and the peaks it leaves unexplained are
+    the missing walls. A pose explaining them too (the truth on the complete map stands in
+    for a look-alike) is preferred by several nats, but with ``heard_max`` that is no
+    evidence for a jump: the remembered part only. Control: a dead-reckoned pose 2 m off
+    the truth hears few of its predicted echoes, and its evidence counts with the gate on."""
+    truth, hms = track
+    k = 6
+    partial = build_tables(wallmap_from_walls(np.delete(ROOM, [3, 5], axis=0)), ECHO)
+    meas = prepare_measurement(hms[k], ECHO)
+    ll_lookalike = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
+    at_truth = explanation(partial, meas, truth[k][None, :])
+    assert at_truth.heard[0] >= 0.9 and at_truth.explained[0] < 0.9
+    near = (truth[k], TIGHT)
+    open_gate, _, _ = reckoned_evidence(partial, meas, ll_lookalike, near, 0.0, 0.9)
+    assert open_gate > 2.0
+    gated, _, _ = reckoned_evidence(partial, meas, ll_lookalike, near, 2.0, 0.9, heard_max=0.5)
+    assert gated == pytest.approx(0.9 * 2.0)
+    away = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)
+    assert explanation(partial, meas, away[0][None, :]).heard[0] < 0.5
+    a, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9)
+    b, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5)
+    assert a == b > 5.0
+    with pytest.raises(ValueError, match="^jump_heard_max must be"):
+        FilterConfig(jump_heard_max=1.5)
+
+
 def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None:
     """A map of one room; the robot, tracked from its true start, drives in an identical
     room 12 m east that the map does not hold (a hotel corridor with one room mapped). The

@@ -463,6 +463,15 @@ def test_map_range_sigma_adds_offset_and_angle_in_quadrature() -> None:
     assert map_range_sigma(ideal, b) is None
 
 
+def test_tables_know_whether_the_map_claims_every_wall() -> None:
+    """A map made from geometry (a floor plan) is complete; one whose provenance lists the
+    runs it was built from holds only the walls they heard."""
+    wm = wallmap_from_walls(np.array([[0.0, 0.0, 4.0, 0.0]]))
+    assert build_tables(wm, SensorConfig(model="echo")).complete
+    built = dataclasses.replace(wm, provenance={"runs": [{"path": "a.npz", "sha256": "0"}]})
+    assert not build_tables(built, SensorConfig(model="echo")).complete
+
+
 def test_soft_ends_run_free_ends_on_and_weigh_bounces_by_the_end_sigma() -> None:
     """An L of two walls joined at (0, 0) with free ends at (4, 0) and (0, 3), endpoint
     sigma 10 cm: only the free ends move (by 2.5 sigma), and a bounce exactly at a free end
