@@ -6,7 +6,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
-                              | "fresh14d" | "fresh14e" | "fresh14f"},
+                              | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -18,8 +18,10 @@ while tuning it, ``"fresh14"`` scenes written for issue 14 that no localization 
 tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
 ``"fresh14c"`` after the Gaussian refinement, ``"fresh14d"`` after the echo model began
 comparing levels, ``"fresh14e"`` after the fresh14d rerun, before any measurement with the
-filter's next change, and ``"fresh14f"`` after the filter's silent-map rule, before any
-measurement of it on new rooms (nothing was run on any of these before they were committed).
+filter's next change, ``"fresh14f"`` after the filter's silent-map rule, before any
+measurement of it on new rooms, and ``"fresh14g"`` after the filter's rule that on a built map
+only missing predicted echoes count as evidence for a jump, before any measurement of it on
+new rooms (nothing was run on any of these before they were committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -40,7 +42,7 @@ from mapping.scene import Scene
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
-               "fresh14e", "fresh14f")
+               "fresh14e", "fresh14f", "fresh14g")
 
 
 @dataclass(frozen=True)

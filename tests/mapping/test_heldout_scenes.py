@@ -27,6 +27,7 @@ FRESH14C = ("workshop", "atrium")  # written after the refinement: group "fresh1
 FRESH14D = ("gallery", "depot")  # written after the levels: group "fresh14d"
 FRESH14E = ("foyer", "annex")  # written after the fresh14d rerun: group "fresh14e"
 FRESH14F = ("vestry", "landing")  # written after the silent-map rule: group "fresh14f"
+FRESH14G = ("cloister", "mews")  # written after the jump-evidence rule: group "fresh14g"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -65,6 +66,10 @@ INTERIOR = {
     "vestry": [(0.0, 0.0), (7.2, 0.6), (8.0, 5.4), (4.4, 3.4), (0.8, 5.9)],
     "landing": [(1.0, 0.0), (3.8, 0.0), (3.8, 4.0), (7.6, 4.0), (7.6, 8.8), (0.0, 8.8),
                 (0.0, 4.0), (1.0, 4.0)],
+    "cloister": [(0.0, 1.2), (2.5, 0.0), (4.3, 1.3), (7.3, 1.5), (8.3, 4.1), (6.1, 6.8),
+                 (0.0, 5.0)],
+    "mews": [(0.0, 0.0), (5.0, 0.0), (5.0, 4.0), (4.6, 4.0), (4.6, 5.5), (6.0, 5.5), (6.0, 9.5),
+             (2.5, 9.5), (2.5, 5.5), (3.4, 5.5), (3.4, 4.0), (0.0, 4.0)],
 }
 
 
@@ -101,7 +106,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH) <= set(SCENES) and set(FRESH14) <= set(SCENES)
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
-    assert set(FRESH14F) <= set(SCENES)
+    assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -110,7 +115,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14c" if spec.scene in FRESH14C
                     else "fresh14d" if spec.scene in FRESH14D
                     else "fresh14e" if spec.scene in FRESH14E
-                    else "fresh14f" if spec.scene in FRESH14F else "held-out")
+                    else "fresh14f" if spec.scene in FRESH14F
+                    else "fresh14g" if spec.scene in FRESH14G else "held-out")
         assert spec.group == expected
 
 
@@ -230,6 +236,65 @@ def test_vestry_has_no_right_angle_and_landing_a_neck_an_open_end_and_a_pillar()
         "passage east": 0.5, "room east": 0.9}
 
 
+def _interior_angles_deg(outline: np.ndarray) -> np.ndarray:
+    """Interior angle at each corner of a counter-clockwise outline (k, 2), degrees."""
+    edges = np.roll(outline, -1, axis=0) - outline
+    u = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+    v = np.roll(u, 1, axis=0)  # the wall arriving at each corner
+    turn = np.degrees(np.arctan2(v[:, 0] * u[:, 1] - v[:, 1] * u[:, 0], np.sum(v * u, axis=1)))
+    return np.asarray(180.0 - turn)
+
+
+def test_cloister_has_no_parallel_walls_and_a_turned_column_and_mews_two_rooms_and_a_gap() -> None:
+    cloister = heldout_scene("cloister")
+    walls = {w.name: w for w in cloister.walls}
+    outline = np.array(INTERIOR["cloister"])
+    assert len(outline) == 7 and np.isclose(np.sum(_interior_angles_deg(outline)), 900.0)
+    interior = _interior_angles_deg(outline)
+    reflex = interior > 180.0
+    assert np.sum(reflex) == 1 and np.allclose(outline[reflex], [(4.3, 1.3)])
+    assert np.all((interior[~reflex] > 100.0) & (interior[~reflex] < 160.0))
+    a = _directions_deg("cloister")[:7]  # the outline's walls
+    diff = np.abs(a[:, None] - a[None])
+    diff = np.minimum(diff, 180.0 - diff)[np.triu_indices(7, 1)]
+    assert diff.min() > 10.0  # no two outer walls parallel
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north": 0.7}
+    column = np.array([cloister.segments()[k] for k, n in enumerate(walls)
+                       if n.startswith("column")])
+    assert len(column) == 4 and np.allclose(column[:, 1], np.roll(column[:, 0], -1, axis=0))
+    sides = np.linalg.norm(column[:, 1] - column[:, 0], axis=1)
+    assert np.allclose(sides, [0.8, 0.5, 0.8, 0.5], atol=1e-3)
+    d = column[:, 1] - column[:, 0]
+    assert np.allclose(np.degrees(np.arctan2(d[:, 1], d[:, 0])) % 180.0, [20, 110, 20, 110],
+                       atol=0.01)                  # a rectangle turned 20 deg
+    centre = column[:, 0].mean(axis=0)
+    assert np.linalg.norm(centre - outline.mean(axis=0)) > 1.0  # off centre
+    outer = np.array([cloister.segments()[k] for k, n in enumerate(walls)
+                      if not n.startswith("column")])
+    assert distance_to_walls(column[:, 0], outer).min() > 1.5  # free-standing
+    mews = heldout_scene("mews")
+    walls = {w.name: w for w in mews.walls}
+    assert all(w.reflection is None for w in mews.walls)
+    assert abs(walls["passage east"].start[0] - walls["passage west"].start[0] - 1.2) < 1e-9
+    assert abs(walls["passage east"].length_m - 1.5) < 1e-9
+    assert abs(walls["passage west"].length_m - 1.5) < 1e-9
+    big = (walls["big east"].start[0] - walls["big west"].start[0],
+           walls["big west"].start[1] - walls["big south"].start[1])
+    small = (walls["small east south"].start[0] - walls["small west"].start[0],
+             walls["small north"].start[1] - walls["small south west"].start[1])
+    assert np.allclose(big, (5.0, 4.0)) and np.allclose(small, (3.5, 4.0))
+    # the small room's east wall is open from y = 6.8 to 8.3: its middle is 0.75 m from every wall
+    assert abs(walls["small east north"].start[1] - walls["small east south"].end[1] - 1.5) < 1e-9
+    assert abs(distance_to_walls(np.array([[6.0, 7.55]]), mews.segments())[0] - 0.75) < 1e-9
+    stub = walls["stub"]
+    assert abs(stub.length_m - 1.2) < 1e-9
+    others = np.array([mews.segments()[k] for k, n in enumerate(walls) if n != "stub"])
+    ends = distance_to_walls(np.array([stub.start, stub.end], dtype=np.float64), others)
+    assert ends[0] < 1e-9 and ends[1] > 1.0  # out of the big room's south wall, one free end
+    assert np.sum(_interior_angles_deg(np.array(INTERIOR["mews"])) > 180.0) == 4  # passage mouths
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -248,7 +313,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14c": FRESH14B_CLEARANCE_M,
                  "fresh14d": FRESH14B_CLEARANCE_M,
                  "fresh14e": FRESH14B_CLEARANCE_M,
-                 "fresh14f": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14f": FRESH14B_CLEARANCE_M,
+                 "fresh14g": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
