@@ -6,7 +6,8 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
     {"<path name>": {"scene": "<scene name>", "kind": "line" | "curve" | "loop",
                      "points": [[x, y], ...], "description": "...",
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
-                              | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"},
+                              | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"
+                              | "fresh14h"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -19,9 +20,12 @@ tuned on, ``"fresh14b"`` scenes written after the filter's rivals were fixed and
 ``"fresh14c"`` after the Gaussian refinement, ``"fresh14d"`` after the echo model began
 comparing levels, ``"fresh14e"`` after the fresh14d rerun, before any measurement with the
 filter's next change, ``"fresh14f"`` after the filter's silent-map rule, before any
-measurement of it on new rooms, and ``"fresh14g"`` after the filter's rule that on a built map
+measurement of it on new rooms, ``"fresh14g"`` after the filter's rule that on a built map
 only missing predicted echoes count as evidence for a jump, before any measurement of it on
-new rooms (nothing was run on any of these before they were committed).
+new rooms, and ``"fresh14h"`` after the filter's rules that a global start on a map built from
+runs confirms only after 8 agreeing blocks and that a block counts as evidence for a jump only
+where at least 1.5 predicted echoes go unheard, before any measurement of them on new rooms
+(nothing was run on any of these before they were committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -42,7 +46,7 @@ from mapping.scene import Scene
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
-               "fresh14e", "fresh14f", "fresh14g")
+               "fresh14e", "fresh14f", "fresh14g", "fresh14h")
 
 
 @dataclass(frozen=True)

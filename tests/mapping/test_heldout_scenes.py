@@ -28,6 +28,7 @@ FRESH14D = ("gallery", "depot")  # written after the levels: group "fresh14d"
 FRESH14E = ("foyer", "annex")  # written after the fresh14d rerun: group "fresh14e"
 FRESH14F = ("vestry", "landing")  # written after the silent-map rule: group "fresh14f"
 FRESH14G = ("cloister", "mews")  # written after the jump-evidence rule: group "fresh14g"
+FRESH14H = ("refectory", "loft")  # written after the confirm and missed-echo rules: "fresh14h"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -70,6 +71,9 @@ INTERIOR = {
                  (0.0, 5.0)],
     "mews": [(0.0, 0.0), (5.0, 0.0), (5.0, 4.0), (4.6, 4.0), (4.6, 5.5), (6.0, 5.5), (6.0, 9.5),
              (2.5, 9.5), (2.5, 5.5), (3.4, 5.5), (3.4, 4.0), (0.0, 4.0)],
+    "refectory": [(0.0, 1.3), (3.2, 0.0), (8.3, 0.3), (9.3, 3.7), (6.8, 6.7), (0.6, 5.8)],
+    "loft": [(0.0, 0.0), (4.8, 0.0), (4.8, 1.35), (5.0, 1.35), (5.0, 0.0), (9.8, 0.0), (9.0, 4.0),
+             (5.0, 4.0), (5.0, 2.65), (4.8, 2.65), (4.8, 4.0), (0.0, 4.0)],
 }
 
 
@@ -107,6 +111,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
+    assert set(FRESH14H) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -116,7 +121,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14d" if spec.scene in FRESH14D
                     else "fresh14e" if spec.scene in FRESH14E
                     else "fresh14f" if spec.scene in FRESH14F
-                    else "fresh14g" if spec.scene in FRESH14G else "held-out")
+                    else "fresh14g" if spec.scene in FRESH14G
+                    else "fresh14h" if spec.scene in FRESH14H else "held-out")
         assert spec.group == expected
 
 
@@ -295,6 +301,110 @@ def test_cloister_has_no_parallel_walls_and_a_turned_column_and_mews_two_rooms_a
     assert np.sum(_interior_angles_deg(np.array(INTERIOR["mews"])) > 180.0) == 4  # passage mouths
 
 
+def _in_sight(p: np.ndarray, q: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """For points p (n, 2) and q (m, 2): (n, m) True where the straight line p-q crosses no wall."""
+    a, ab = segments[:, 0], segments[:, 1] - segments[:, 0]  # (w, 2)
+    r = q[None, :, :] - p[:, None, :]  # (n, m, 2)
+    ap = a[None, :, :] - p[:, None, :]  # (n, w, 2)
+
+    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.asarray(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+
+    den = cross(r[:, :, None, :], ab[None, None])  # (n, m, w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = cross(ap[:, None], ab[None, None]) / den  # along p-q
+        u = cross(ap[:, None], r[:, :, None, :]) / den  # along the wall
+    hit = (den != 0) & (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)
+    return np.asarray(~hit.any(axis=2))
+
+
+def test_in_sight_rule() -> None:
+    wall = np.array([[[1.0, -1.0], [1.0, 1.0]]])
+    seen = _in_sight(np.array([[0.0, 0.0]]), np.array([[2.0, 0.0], [0.5, 3.0], [2.0, 3.0]]), wall)
+    assert seen.tolist() == [[False, True, True]]
+
+
+def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_rooms() -> None:
+    refectory = heldout_scene("refectory")
+    walls = {w.name: w for w in refectory.walls}
+    outline = np.array(INTERIOR["refectory"])
+    interior = _interior_angles_deg(outline)
+    assert len(outline) == 6 and np.isclose(np.sum(interior), 720.0)
+    assert np.all((interior > 100.0) & (interior < 160.0))  # no right angle, no reflex corner
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north": 0.8}
+    segments = refectory.segments()
+    counter = np.array([segments[k] for k, n in enumerate(walls) if n.startswith("counter")])
+    assert len(counter) == 4 and np.allclose(counter[:, 1], np.roll(counter[:, 0], -1, axis=0))
+    sides = np.linalg.norm(counter[:, 1] - counter[:, 0], axis=1)
+    assert np.allclose(sides, [3.2, 0.6, 3.2, 0.6], atol=1e-3)  # a closed block, a long one
+    a = _directions_deg("refectory")
+    names = list(walls)
+    east_wall, face = walls["east"], walls["counter east"]
+    assert abs(a[names.index("counter east")] - a[names.index("east")]) < 0.01  # parallel
+    gap = distance_to_walls(np.array([face.start, face.end], dtype=np.float64),
+                            np.array([[east_wall.start, east_wall.end]], dtype=np.float64))
+    assert np.allclose(gap, 2.02, atol=0.01)  # the bay, 2 m wide
+    corners = counter[:, 0]
+    outer = np.array([segments[k] for k, n in enumerate(walls) if not n.startswith("counter")])
+    assert distance_to_walls(corners, outer).min() > 0.5  # free-standing
+    south = np.array([[walls["south"].start, walls["south"].end]], dtype=np.float64)
+    north_east = np.array([[walls["north-east"].start, walls["north-east"].end]],
+                          dtype=np.float64)
+    slot = distance_to_walls(corners, south).min()
+    mouth = distance_to_walls(corners, north_east).min()
+    assert slot < 2 * FRESH14B_CLEARANCE_M < mouth  # the bay opens for a robot only at its north
+    assert 0.55 < slot < 0.65 and 1.45 < mouth < 1.55
+    # the bay's middle: its centre line beside the counter's middle 2.4 m, never in sight of the
+    # mapped curve, which stays west of the counter; the bay path drives down it
+    u = (face.end[0] - face.start[0], face.end[1] - face.start[1])
+    u_hat = np.array(u) / np.linalg.norm(u)
+    east_normal = np.array([u_hat[1], -u_hat[0]])  # out of the face, east
+    mid = np.array(face.start) + 1.6 * u_hat
+    bay = mid + np.linspace(-1.2, 1.2, 13)[:, None] * u_hat + 1.01 * east_normal
+    assert distance_to_walls(bay, segments).min() > 0.6  # the south wall closes in at its end
+    curve = heldout_path("refectory-curve").trajectory()
+    seen_from = curve.position(np.linspace(0.0, curve.duration_s, 400))
+    assert seen_from[:, 0].max() < corners[:, 0].min() - 1.0
+    assert not _in_sight(seen_from, bay, segments).any()
+    drive = heldout_path("refectory-bay").trajectory()
+    driven = drive.position(np.linspace(0.0, drive.duration_s, 1000))
+    path_segments = np.stack([driven[:-1], driven[1:]], axis=1)
+    assert distance_to_walls(bay[2:], path_segments).max() < 0.2  # all but its south 0.4 m
+    loft = heldout_scene("loft")
+    walls = {w.name: w for w in loft.walls}
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "west room north": 0.6, "east room sloped": 0.8}
+    west = np.array([(0.0, 0.0), (4.8, 0.0), (4.8, 4.0), (0.0, 4.0)])
+    east = np.array([walls["east room south"].start, walls["east room south"].end,
+                     walls["east room north"].start, walls["east room north"].end])
+    assert distance_to_walls(west, loft.segments()).max() < 1e-9
+    sloped = _directions_deg("loft")[list(walls).index("east room sloped")]
+    assert abs(abs(sloped - 90.0) - np.degrees(np.arctan2(0.8, 4.0))) < 1e-9  # 11.3 deg off
+
+    def area(polygon: np.ndarray) -> float:
+        x, y = polygon[:, 0], polygon[:, 1]
+        return float(0.5 * abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+
+    assert np.isclose(area(west), 19.2) and np.isclose(area(east), 17.6)  # similar, not equal
+    # mirrored about the dividing wall's middle (x = 4.9) the west room is the east room but for
+    # the sloped wall's north end, 0.8 m away
+    mirrored = west * [-1.0, 1.0] + [9.8, 0.0]
+    gap = np.linalg.norm(mirrored[:, None] - east[None], axis=2).min(axis=1)
+    assert np.sum(gap > 1e-9) == 1 and np.isclose(gap.max(), 0.8)
+    door = (walls["doorway north jamb"].start[1] - walls["doorway south jamb"].start[1])
+    assert abs(door - 1.3) < 1e-9 and abs(walls["doorway north jamb"].length_m - 0.2) < 1e-9
+    assert abs(walls["doorway south jamb"].start[1] + door / 2 - 2.0) < 1e-9  # in the middle
+    assert np.sum(_interior_angles_deg(np.array(INTERIOR["loft"])) > 180.0) == 4  # jamb corners
+    for name, room_x in (("loft-curve", (0.0, 4.8)), ("loft-line", (0.0, 4.8))):
+        trajectory = heldout_path(name).trajectory()
+        x = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))[:, 0]
+        assert room_x[0] < x.min() and x.max() < room_x[1]  # the west room only
+    trajectory = heldout_path("loft-door").trajectory()
+    end = trajectory.position(np.array([trajectory.duration_s]))[0]
+    assert end[0] > 5.0 + 2.0  # well into the east room
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -314,7 +424,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14d": FRESH14B_CLEARANCE_M,
                  "fresh14e": FRESH14B_CLEARANCE_M,
                  "fresh14f": FRESH14B_CLEARANCE_M,
-                 "fresh14g": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14g": FRESH14B_CLEARANCE_M,
+                 "fresh14h": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
