@@ -318,7 +318,7 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
 
 def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimate: float,
                       reckoned: tuple[FloatArray, FloatArray], gap: float, memory: float,
-                      min_echoes: int = 0, heard_max: float = 1.0
+                      min_echoes: int = 0, heard_max: float = 1.0, missed_min: float = 0.0
                       ) -> tuple[float, FloatArray, float]:
     """Evidence (nats) for a held jump: ``memory * gap + ll(estimate) - ll(best)``, ``best``
     the pose near the dead-reckoned one that explains the block best (a shrinking stencil
@@ -328,17 +328,21 @@ def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimat
     the map has no walls for: beyond its mapped walls' ends or out of their range), the
     block is no evidence: that the pose explains it badly says the map is silent there, not
     that the robot was carried away; the evidence is ``memory * gap``. Likewise where at
-    least ``heard_max`` of the echoes the map predicts at ``best`` are heard (the map and the
-    odometry agree; what ``best`` leaves unexplained are walls the map lacks).
+    least ``heard_max`` of the echoes the map predicts at ``best`` are heard, or fewer than
+    ``missed_min`` of its specular echoes go unheard (the map and the odometry agree; what
+    ``best`` leaves unexplained, or does not hear, are walls the map lacks).
     Returns the evidence, the best pose and its log-likelihood."""
     sd = np.sqrt(np.maximum(np.diag(reckoned[1]), 0.0))
     step = (float(np.clip(sd[0], 0.02, 0.25)), float(np.clip(sd[1], 0.02, 0.25)),
             float(np.clip(sd[2], math.radians(1.0), math.radians(10.0))))
     best, ll = _rivals.refine_poses(tables, measurement, reckoned[0][None, :], step, rounds=3)
-    if min_echoes > 0 and map_echoes(tables, measurement.speed_m_s, best[0]) < min_echoes:
+    n_best = map_echoes(tables, measurement.speed_m_s, best[0])
+    if min_echoes > 0 and n_best < min_echoes:
         return memory * gap, best[0], float(ll[0])
-    if heard_max < 1.0 and explanation(tables, measurement, best).heard[0] >= heard_max:
-        return memory * gap, best[0], float(ll[0])
+    if heard_max < 1.0:
+        heard = float(explanation(tables, measurement, best).heard[0])
+        if heard >= heard_max or n_best * (1.0 - heard) < missed_min:
+            return memory * gap, best[0], float(ll[0])
     return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0])
 
 
@@ -582,7 +586,8 @@ class ParticleFilter:
                 evidence, best, _ = reckoned_evidence(
                     self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
                     self.jump_gap, cfg.rival_memory, cfg.min_map_echoes,
-                    1.0 if self.tables.complete else cfg.jump_heard_max)
+                    1.0 if self.tables.complete else cfg.jump_heard_max,
+                    cfg.jump_missed_min)
                 if evidence < cfg.kidnap_prior_nats:
                     back = best[None, :]   # the dead-reckoned pose explains as well: keep it
             jump_gap = self.jump_gap if evidence is None else evidence

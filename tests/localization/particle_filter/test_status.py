@@ -311,8 +311,40 @@ def test_walls_missing_from_the_map_give_no_evidence_for_a_jump(
     a, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9)
     b, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5)
     assert a == b > 5.0
+    c, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5,
+                                missed_min=1.5)
+    assert c == a                                       # most echoes missed: still counts
     with pytest.raises(ValueError, match="^jump_heard_max must be"):
         FilterConfig(jump_heard_max=1.5)
+
+
+def test_one_missing_echo_of_two_is_no_evidence_for_a_jump(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """A built map holding the south wall and a wall the robot does not hear (at x = 4.2 m:
+    in the kitchen, the wall behind an island the mapping run never heard). At the true pose
+    the map predicts two specular echoes and one is heard: under ``heard_max`` 0.5, so that
+    gate alone lets the block count, and a pose explaining the block (the truth on the
+    complete map) is preferred by many nats. With ``missed_min`` 1.5 (one echo missing is
+    not enough) it is no evidence; a robot carried away, missing most of its echoes, still
+    is (the control in the test above)."""
+    truth, hms = track
+    k = 3
+    built = build_tables(wallmap_from_walls(np.array([ROOM[0], [4.2, 1.0, 4.2, 3.0]]),
+                                            margin_m=2.0), ECHO)
+    meas = prepare_measurement(hms[k], ECHO)
+    at_truth = explanation(built, meas, truth[k][None, :])
+    assert map_echoes(built, meas.speed_m_s, truth[k]) == 2
+    assert 0.25 < at_truth.heard[0] < 0.55              # one of the two
+    ll_lookalike = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
+    near = (truth[k], TIGHT)
+    counted, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 0.0, 0.9, 2, 0.5)
+    assert counted > 5.0
+    gated, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 2.0, 0.9, 2, 0.5, 1.5)
+    assert gated == pytest.approx(0.9 * 2.0)
+    with pytest.raises(ValueError, match="^jump_missed_min must be"):
+        FilterConfig(jump_missed_min=-1.0)
+    with pytest.raises(ValueError, match="^jump_missed_min must be"):
+        FilterConfig(jump_missed_min=math.inf)
 
 
 def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None:
