@@ -379,6 +379,45 @@ def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None
                for e, t in zip(control, truth, strict=True))
 
 
+def test_a_robot_missing_one_of_two_mapped_echoes_keeps_its_dead_reckoned_pose() -> None:
+    """A built map (its provenance lists a run) of one room, plus two walls of an identical
+    room 12 m east: that room's south wall, and a wall at x = 16.2 m that the robot there
+    does not hear (in the kitchen, the wall behind an island the mapping run never heard).
+    The robot, tracked from its true start, drives straight in the east room. The map
+    predicts two echoes there and one is heard. The mapped room holds a look-alike that
+    explains every block. With ``jump_missed_min`` (one missing echo is no evidence) the
+    filter reports the dead-reckoned pose (exact odometry: the truth), never ``converged``.
+    Control: with the rule off (0) the look-alike is taken, ``converged`` 12 m off."""
+    shift = np.array([12.0, 0.0, 12.0, 0.0])
+    odo: Odometry = [(0.2, 0.0)] * 12
+    truth = trajectory(START + np.array([12.0, 0.0, 0.0]), odo, DT)
+    real = WallSet.from_array(ROOM + shift)
+    hms = [predicted_heatmap(real, p, 0.2, SONAR) for p in truth]
+    wm = wallmap_from_walls(np.vstack([ROOM, ROOM[0] + shift, [16.2, 1.0, 16.2, 3.0]]),
+                            margin_m=2.0)
+    tables = build_tables(dataclasses.replace(
+        wm, provenance={**wm.provenance, "runs": ["mapping-run"]}), ECHO)
+    assert not tables.complete
+    for k in (2, 6, 10):
+        meas = prepare_measurement(hms[k], ECHO)
+        assert map_echoes(tables, meas.speed_m_s, truth[k]) == 2
+        assert explanation(tables, meas, truth[k][None, :]).heard[0] <= 0.55
+
+    def run(config: FilterConfig) -> list[PoseEstimate]:
+        pf = ParticleFilter(tables, config, np.random.default_rng(3), pose=truth[0], cov=TIGHT)
+        return [pf.step(hm, *((odo[k - 1] if k else (0.2, 0.0)) + ((DT if k else 0.0),)))
+                for k, hm in enumerate(hms)]
+
+    config = dataclasses.replace(CONFIG, jump_dwell_blocks=3)
+    gated = run(config)
+    assert all(_error_m(e, t) < 0.1 for e, t in zip(gated, truth, strict=True))
+    assert all(e.status != "converged" for e in gated)
+    assert any(e.reckoned for e in gated)               # the particles did leave
+    control = run(dataclasses.replace(config, jump_missed_min=0.0))
+    assert any(e.status == "converged" and _error_m(e, t) > 5.0
+               for e, t in zip(control, truth, strict=True))
+
+
 def test_a_global_start_is_confirmed_only_by_agreeing_blocks() -> None:
     """``confirm_start``: without a prior, estimates the filter would call converged are
     uncertain until confirm_blocks of them agree through the odometry; one that contradicts
