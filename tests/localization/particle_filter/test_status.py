@@ -347,6 +347,23 @@ def test_one_missing_echo_of_two_is_no_evidence_for_a_jump(
         FilterConfig(jump_missed_min=math.inf)
 
 
+def _drive_tracked(tables: SensorTables, truth: FloatArray, hms: list[HeatMap],
+                   odo: Odometry, config: FilterConfig) -> list[PoseEstimate]:
+    """A filter started tracked at the true start, stepped through the blocks with the
+    odometry (the first block with no time elapsed)."""
+    pf = ParticleFilter(tables, config, np.random.default_rng(3), pose=truth[0], cov=TIGHT)
+    return [pf.step(hm, *(odo[k - 1] if k else odo[0]), DT if k else 0.0)
+            for k, hm in enumerate(hms)]
+
+
+def _assert_keeps_dead_reckoning(estimates: list[PoseEstimate], truth: FloatArray) -> None:
+    """Every block at the truth (exact odometry) and never ``converged``; the particles did
+    leave for a look-alike (some blocks report the dead-reckoned pose)."""
+    assert all(_error_m(e, t) < 0.1 for e, t in zip(estimates, truth, strict=True))
+    assert all(e.status != "converged" for e in estimates)
+    assert any(e.reckoned for e in estimates)
+
+
 def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None:
     """A map of one room; the robot, tracked from its true start, drives in an identical
     room 12 m east that the map does not hold (a hotel corridor with one room mapped). The
@@ -361,20 +378,14 @@ def test_a_robot_in_an_unmapped_twin_room_keeps_its_dead_reckoned_pose() -> None
     hms = [predicted_heatmap(walls, p, 0.15, SONAR) for p in truth]
     tables = build_tables(wallmap_from_walls(ROOM, margin_m=15.0), ECHO)
 
-    def run(config: FilterConfig) -> list[PoseEstimate]:
-        pf = ParticleFilter(tables, config, np.random.default_rng(3), pose=truth[0], cov=TIGHT)
-        return [pf.step(hm, *((odo[k - 1] if k else (0.15, 0.0)) + ((DT if k else 0.0),)))
-                for k, hm in enumerate(hms)]
-
     config = dataclasses.replace(CONFIG, jump_dwell_blocks=3)
-    gated = run(config)
-    assert all(_error_m(e, t) < 0.1 for e, t in zip(gated, truth, strict=True))
-    assert all(e.status != "converged" for e in gated)
-    assert any(e.reckoned for e in gated)               # the particles did leave
+    gated = _drive_tracked(tables, truth, hms, odo, config)
+    _assert_keeps_dead_reckoning(gated, truth)
     away = [e for e in gated if e.reckoned]
     assert all(any(float(np.hypot(*(m.mean[:2] - e.pose[:2]))) > 5.0 for m in e.modes)
                for e in away)                           # ... and the modes say where to
-    control = run(dataclasses.replace(config, min_map_echoes=0))
+    control = _drive_tracked(tables, truth, hms, odo,
+                             dataclasses.replace(config, min_map_echoes=0))
     assert any(e.status == "converged" and _error_m(e, t) > 5.0
                for e, t in zip(control, truth, strict=True))
 
@@ -403,17 +414,10 @@ def test_a_robot_missing_one_of_two_mapped_echoes_keeps_its_dead_reckoned_pose()
         assert map_echoes(tables, meas.speed_m_s, truth[k]) == 2
         assert explanation(tables, meas, truth[k][None, :]).heard[0] <= 0.55
 
-    def run(config: FilterConfig) -> list[PoseEstimate]:
-        pf = ParticleFilter(tables, config, np.random.default_rng(3), pose=truth[0], cov=TIGHT)
-        return [pf.step(hm, *((odo[k - 1] if k else (0.2, 0.0)) + ((DT if k else 0.0),)))
-                for k, hm in enumerate(hms)]
-
     config = dataclasses.replace(CONFIG, jump_dwell_blocks=3)
-    gated = run(config)
-    assert all(_error_m(e, t) < 0.1 for e, t in zip(gated, truth, strict=True))
-    assert all(e.status != "converged" for e in gated)
-    assert any(e.reckoned for e in gated)               # the particles did leave
-    control = run(dataclasses.replace(config, jump_missed_min=0.0))
+    _assert_keeps_dead_reckoning(_drive_tracked(tables, truth, hms, odo, config), truth)
+    control = _drive_tracked(tables, truth, hms, odo,
+                             dataclasses.replace(config, jump_missed_min=0.0))
     assert any(e.status == "converged" and _error_m(e, t) > 5.0
                for e, t in zip(control, truth, strict=True))
 
