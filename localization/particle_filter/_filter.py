@@ -336,13 +336,15 @@ def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimat
     step = (float(np.clip(sd[0], 0.02, 0.25)), float(np.clip(sd[1], 0.02, 0.25)),
             float(np.clip(sd[2], math.radians(1.0), math.radians(10.0))))
     best, ll = _rivals.refine_poses(tables, measurement, reckoned[0][None, :], step, rounds=3)
-    n_best = map_echoes(tables, measurement.speed_m_s, best[0])
-    if min_echoes > 0 and n_best < min_echoes:
-        return memory * gap, best[0], float(ll[0])
-    if heard_max < 1.0:
-        heard = float(explanation(tables, measurement, best).heard[0])
-        if heard >= heard_max or n_best * (1.0 - heard) < missed_min:
-            return memory * gap, best[0], float(ll[0])
+    remembered = memory * gap, best[0], float(ll[0])
+    if min_echoes > 0 or heard_max < 1.0 or missed_min > 0.0:
+        n_best = map_echoes(tables, measurement.speed_m_s, best[0])
+        if n_best < min_echoes:
+            return remembered
+        if heard_max < 1.0 or missed_min > 0.0:
+            heard = float(explanation(tables, measurement, best).heard[0])
+            if heard >= heard_max or n_best * (1.0 - heard) < missed_min:
+                return remembered
     return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0])
 
 
@@ -586,8 +588,9 @@ class ParticleFilter:
                 evidence, best, _ = reckoned_evidence(
                     self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
                     self.jump_gap, cfg.rival_memory, cfg.min_map_echoes,
+                    # a complete map claims every wall: every block counts there
                     1.0 if self.tables.complete else cfg.jump_heard_max,
-                    cfg.jump_missed_min)
+                    0.0 if self.tables.complete else cfg.jump_missed_min)
                 if evidence < cfg.kidnap_prior_nats:
                     back = best[None, :]   # the dead-reckoned pose explains as well: keep it
             jump_gap = self.jump_gap if evidence is None else evidence
