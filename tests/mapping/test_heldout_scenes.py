@@ -13,6 +13,7 @@ from benchmarks._heldout import (
     heldout_scene_names,
 )
 from benchmarks.wall_maps import score_map
+from mapping.coverage import coverage_mask
 from mapping.path import min_wall_distance_m
 from mapping.quality import distance_to_walls
 from mapping.wallmap import WallMap
@@ -301,29 +302,6 @@ def test_cloister_has_no_parallel_walls_and_a_turned_column_and_mews_two_rooms_a
     assert np.sum(_interior_angles_deg(np.array(INTERIOR["mews"])) > 180.0) == 4  # passage mouths
 
 
-def _in_sight(p: np.ndarray, q: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """For points p (n, 2) and q (m, 2): (n, m) True where the straight line p-q crosses no wall."""
-    a, ab = segments[:, 0], segments[:, 1] - segments[:, 0]  # (w, 2)
-    r = q[None, :, :] - p[:, None, :]  # (n, m, 2)
-    ap = a[None, :, :] - p[:, None, :]  # (n, w, 2)
-
-    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return np.asarray(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
-
-    den = cross(r[:, :, None, :], ab[None, None])  # (n, m, w)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = cross(ap[:, None], ab[None, None]) / den  # along p-q
-        u = cross(ap[:, None], r[:, :, None, :]) / den  # along the wall
-    hit = (den != 0) & (t > 0.0) & (t < 1.0) & (u >= 0.0) & (u <= 1.0)
-    return np.asarray(~hit.any(axis=2))
-
-
-def test_in_sight_rule() -> None:
-    wall = np.array([[[1.0, -1.0], [1.0, 1.0]]])
-    seen = _in_sight(np.array([[0.0, 0.0]]), np.array([[2.0, 0.0], [0.5, 3.0], [2.0, 3.0]]), wall)
-    assert seen.tolist() == [[False, True, True]]
-
-
 def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_rooms() -> None:
     refectory = heldout_scene("refectory")
     walls = {w.name: w for w in refectory.walls}
@@ -366,7 +344,14 @@ def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_room
     curve = heldout_path("refectory-curve").trajectory()
     seen_from = curve.position(np.linspace(0.0, curve.duration_s, 400))
     assert seen_from[:, 0].max() < corners[:, 0].min() - 1.0
-    assert not _in_sight(seen_from, bay, segments).any()
+    # the project's own line of sight (the map's coverage) on a 5 cm grid over the bay
+    gx = np.arange(bay[:, 0].min() - 0.1, bay[:, 0].max() + 0.1, 0.05)
+    gy = np.arange(bay[:, 1].min() - 0.1, bay[:, 1].max() + 0.1, 0.05)
+    poses = np.column_stack([seen_from, np.zeros(len(seen_from))])
+    seen = coverage_mask(poses, gx, gy, 50.0, segments.reshape(-1, 4))
+    ix = np.abs(gx[None, :] - bay[:, :1]).argmin(axis=1)
+    iy = np.abs(gy[None, :] - bay[:, 1:]).argmin(axis=1)
+    assert not seen[iy, ix].any()
     drive = heldout_path("refectory-bay").trajectory()
     driven = drive.position(np.linspace(0.0, drive.duration_s, 1000))
     path_segments = np.stack([driven[:-1], driven[1:]], axis=1)
