@@ -30,6 +30,7 @@ FRESH14E = ("foyer", "annex")  # written after the fresh14d rerun: group "fresh1
 FRESH14F = ("vestry", "landing")  # written after the silent-map rule: group "fresh14f"
 FRESH14G = ("cloister", "mews")  # written after the jump-evidence rule: group "fresh14g"
 FRESH14H = ("refectory", "loft")  # written after the confirm and missed-echo rules: "fresh14h"
+FRESH14I = ("lounge", "arcade", "library")  # written at the start of session 31: "fresh14i"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -75,6 +76,12 @@ INTERIOR = {
     "refectory": [(0.0, 1.3), (3.2, 0.0), (8.3, 0.3), (9.3, 3.7), (6.8, 6.7), (0.6, 5.8)],
     "loft": [(0.0, 0.0), (4.8, 0.0), (4.8, 1.35), (5.0, 1.35), (5.0, 0.0), (9.8, 0.0), (9.0, 4.0),
              (5.0, 4.0), (5.0, 2.65), (4.8, 2.65), (4.8, 4.0), (0.0, 4.0)],
+    "lounge": [(0.3, 1.0), (6.5, 0.0), (10.0, 3.0), (7.7, 7.4), (0.0, 5.3)],
+    "arcade": [(0.0, 0.0), (11.0, 0.0), (11.0, 3.6), (10.1, 3.6), (10.1, 4.2), (8.9, 4.2),
+               (8.9, 3.6), (7.6, 3.6), (7.6, 4.2), (6.4, 4.2), (6.4, 3.6), (5.1, 3.6), (5.1, 4.2),
+               (3.9, 4.2), (3.9, 3.6), (2.6, 3.6), (2.6, 4.2), (1.4, 4.2), (1.4, 3.6), (0.0, 3.6)],
+    "library": [(0.0, 0.0), (10.0, 0.0), (10.0, 7.2), (6.6, 7.2), (6.6, 3.0), (3.0, 3.0),
+                (3.0, 8.0), (0.0, 8.0)],
 }
 
 
@@ -112,7 +119,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14B) <= set(SCENES) and set(FRESH14C) <= set(SCENES)
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
-    assert set(FRESH14H) <= set(SCENES)
+    assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -123,7 +130,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14e" if spec.scene in FRESH14E
                     else "fresh14f" if spec.scene in FRESH14F
                     else "fresh14g" if spec.scene in FRESH14G
-                    else "fresh14h" if spec.scene in FRESH14H else "held-out")
+                    else "fresh14h" if spec.scene in FRESH14H
+                    else "fresh14i" if spec.scene in FRESH14I else "held-out")
         assert spec.group == expected
 
 
@@ -390,6 +398,135 @@ def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_room
     assert end[0] > 5.0 + 2.0  # well into the east room
 
 
+def _winding_deg(name: str, centre: np.ndarray) -> float:
+    """Angle the path ``name`` turns round ``centre`` (unwrapped, counter-clockwise > 0), deg."""
+    trajectory = heldout_path(name).trajectory()
+    xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 2000)) - centre
+    angle = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
+    return float(np.degrees(angle[-1] - angle[0]))
+
+
+def test_lounge_has_no_right_angle_and_two_round_columns_off_centre() -> None:
+    lounge = heldout_scene("lounge")
+    walls = {w.name: w for w in lounge.walls}
+    outline = np.array(INTERIOR["lounge"])
+    interior = _interior_angles_deg(outline)
+    assert len(outline) == 5 and np.isclose(np.sum(interior), 540.0)
+    assert np.all((interior > 100.0) & (interior < 135.0))  # no right angle, no reflex corner
+    names = list(walls)
+    is_outer = np.array([not n.startswith("column") for n in names])
+    a = _directions_deg("lounge")[is_outer]
+    diff = np.abs(a[:, None] - a[None])
+    diff = np.minimum(diff, 180.0 - diff)[np.triu_indices(len(a), 1)]
+    assert len(a) == 5 and diff.min() > 20.0  # no two outer walls parallel
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north": 0.8, "west": 0.6}
+    segments = lounge.segments()
+    outer = segments[is_outer]
+    x, y = outline[:, 0], outline[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    centroid = np.array([np.sum((x + np.roll(x, -1)) * cross),
+                         np.sum((y + np.roll(y, -1)) * cross)]) / (3.0 * np.sum(cross))
+    centres = {}
+    for label, sides, across_m in (("A", 10, 0.8), ("B", 8, 0.6)):
+        column = np.array([segments[k] for k, n in enumerate(names)
+                           if n.startswith(f"column {label} ")])
+        assert len(column) == sides  # round-ish: a polygon of many short walls
+        assert np.allclose(column[:, 1], np.roll(column[:, 0], -1, axis=0))  # closed
+        sides_m = np.linalg.norm(column[:, 1] - column[:, 0], axis=1)
+        assert np.allclose(sides_m, sides_m[0], atol=1e-3) and sides_m.max() < 0.3
+        centre = column[:, 0].mean(axis=0)
+        radii = np.linalg.norm(column[:, 0] - centre, axis=1)
+        assert np.allclose(radii, across_m / 2.0, atol=1e-3)  # regular, corners on a circle
+        assert distance_to_walls(column[:, 0], outer).min() > 1.5  # free-standing
+        assert np.linalg.norm(centre - centroid) > 1.5  # not centred
+        centres[label] = centre
+    assert np.linalg.norm(centres["A"] - centres["B"]) > 4.0
+    # the mapped curve goes round column A only; lounge-east goes round column B only
+    assert abs(_winding_deg("lounge-curve", centres["A"])) > 270.0
+    assert abs(_winding_deg("lounge-curve", centres["B"])) < 90.0
+    assert abs(_winding_deg("lounge-east", centres["B"])) > 250.0
+    assert abs(_winding_deg("lounge-east", centres["A"])) < 180.0
+    curve = heldout_path("lounge-curve").trajectory()
+    mapped = curve.position(np.linspace(0.0, curve.duration_s, 500))
+    assert np.linalg.norm(mapped - centres["B"], axis=1).min() > 2.0
+
+
+def test_arcade_has_four_look_alike_niches_and_an_open_end() -> None:
+    arcade = heldout_scene("arcade")
+    walls = {w.name: w for w in arcade.walls}
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "south": 0.8, "west": 0.6}
+    segments = arcade.segments()
+    niches = [[walls[f"niche {i} {side}"] for side in ("east", "back", "west")]
+              for i in range(1, 5)]
+    assert len([n for n in walls if n.startswith("niche")]) == 12
+    for east, back, west in niches:
+        assert abs(back.length_m - 1.2) < 1e-9  # 1.2 m wide
+        assert abs(east.length_m - 0.6) < 1e-9 and abs(west.length_m - 0.6) < 1e-9  # 0.6 deep
+    west_sides = np.array([west.start[0] for _, _, west in niches])
+    assert np.allclose(west_sides, [1.4, 3.9, 6.4, 8.9]) and np.allclose(np.diff(west_sides), 2.5)
+    # look-alikes: each niche moved one period east lies exactly on the next one
+    for niche in niches[:3]:
+        ends = np.array([[w.start, w.end] for w in niche], dtype=np.float64).reshape(-1, 2)
+        assert distance_to_walls(ends + [2.5, 0.0], segments).max() < 1e-9
+    # the east end is open over the whole width: its middle is 1.8 m from every wall, nothing
+    # lies east of it
+    assert abs(distance_to_walls(np.array([[11.0, 1.8]]), segments)[0] - 1.8) < 1e-9
+    assert segments[..., 0].max() == 11.0
+    assert not any(w.start[0] == w.end[0] == 11.0 for w in arcade.walls)
+
+    def x_range(name: str) -> tuple[float, float]:
+        trajectory = heldout_path(name).trajectory()
+        x = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))[:, 0]
+        return float(x.min()), float(x.max())
+
+    assert x_range("arcade-curve")[1] < west_sides[2] - 0.5  # the west half, two niches
+    line = x_range("arcade-line")
+    assert line[0] < west_sides[0] and line[1] > west_sides[3] + 1.2  # past all four niches
+    assert x_range("arcade-mouth")[1] > 11.0 - 1.0  # near the open end
+
+
+def test_library_is_a_u_whose_east_wing_the_mapped_curve_never_sees() -> None:
+    library = heldout_scene("library")
+    walls = {w.name: w for w in library.walls}
+    outline = np.array(INTERIOR["library"])
+    interior = _interior_angles_deg(outline)
+    assert np.allclose(np.sort(interior), [90.0] * 6 + [270.0] * 2)
+    assert np.allclose(outline[interior > 180.0], [(6.6, 3.0), (3.0, 3.0)])  # courtyard corners
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east arm north": 0.6, "east arm west": 0.8, "courtyard": 0.8, "west arm east": 0.8}
+    west_wing = (walls["west arm east"].start[0] - walls["west"].start[0],
+                 walls["west arm north"].start[1] - walls["courtyard"].start[1])
+    east_wing = (walls["east"].start[0] - walls["east arm west"].start[0],
+                 walls["east arm north"].start[1] - walls["courtyard"].start[1])
+    assert np.allclose(west_wing, (3.0, 5.0)) and np.allclose(east_wing, (3.4, 4.2))  # unequal
+    # the east wing's centre line north of y = 4.8: never in sight of the mapped curve (the
+    # project's own line of sight, the map's coverage, on a 5 cm grid); library-arm drives it
+    line = np.column_stack([np.full(19, 8.3), np.linspace(4.8, 6.6, 19)])
+    assert distance_to_walls(line, library.segments()).min() > 0.5
+    curve = heldout_path("library-curve").trajectory()
+    seen_from = curve.position(np.linspace(0.0, curve.duration_s, 400))
+    assert seen_from[:, 0].max() < 4.5 and seen_from[:, 1].max() > 7.0  # up the west wing
+    gx = np.arange(8.0, 8.6, 0.05)
+    gy = np.arange(4.7, 6.7, 0.05)
+    poses = np.column_stack([seen_from, np.zeros(len(seen_from))])
+    ix = np.abs(gx[None, :] - line[:, :1]).argmin(axis=1)
+    iy = np.abs(gy[None, :] - line[:, 1:]).argmin(axis=1)
+    segments = library.segments()
+    seen = coverage_mask(poses, gx, gy, 50.0, segments.reshape(-1, 4))
+    assert not seen[iy, ix].any()
+    # control: without the courtyard's south wall and the east wing's west wall it is in sight
+    names = list(walls)
+    kept = [k for k, n in enumerate(names) if n not in ("courtyard", "east arm west")]
+    seen = coverage_mask(poses, gx, gy, 50.0, segments[kept].reshape(-1, 4))
+    assert seen[iy, ix].all()
+    drive = heldout_path("library-arm").trajectory()
+    driven = drive.position(np.linspace(0.0, drive.duration_s, 1000))
+    path_segments = np.stack([driven[:-1], driven[1:]], axis=1)
+    assert distance_to_walls(line, path_segments).max() < 0.02
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -410,7 +547,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14e": FRESH14B_CLEARANCE_M,
                  "fresh14f": FRESH14B_CLEARANCE_M,
                  "fresh14g": FRESH14B_CLEARANCE_M,
-                 "fresh14h": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14h": FRESH14B_CLEARANCE_M,
+                 "fresh14i": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
