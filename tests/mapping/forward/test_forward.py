@@ -155,6 +155,31 @@ def test_batch_equals_single_and_required_order() -> None:
         np.testing.assert_array_equal(getattr(serial, name), getattr(batch, name), err_msg=name)
 
 
+def test_poses_beyond_the_first_capacity_are_traced_again_with_room_for_all() -> None:
+    """A batch where some poses hear more paths than the kernel's first pass has slots for
+    (:data:`mapping.forward._echoes.FIRST_CAPACITY`) and some fewer: every row equals the pose
+    traced alone with room for all its paths (the numpy twin's count), none is cut short."""
+    from mapping.forward._echoes import FIRST_CAPACITY
+
+    walls = WallSet.from_scene(builtin_scene("shoebox"))
+    params = ForwardParams(max_order=3, max_range_m=8.0)
+    # the room's middle hears many order-3 paths; outside it (one wall in view) hears one
+    poses = np.array([[2.0, 1.5, 0.3], [30.0, 1.5, 0.0], [1.0, 1.0, -1.0], [30.0, -2.0, 1.0]])
+    batch = echoes_batch(walls, poses, 0.2, CFG, params)
+    want = [len(echoes_numpy(walls.segments_m, walls.strength, p, 0.2, C, 3, 16.0, 1.0))
+            for p in poses]
+    assert max(want) > FIRST_CAPACITY >= min(want)
+    assert list(batch.count) == want
+    for i, pose in enumerate(poses):
+        one = echoes(walls, pose, 0.2, CFG, params)
+        got = batch.echoes_of(i)
+        assert got.k == want[i]
+        np.testing.assert_array_equal(got.walls, one.walls)
+        np.testing.assert_allclose(got.range_m, one.range_m)
+        assert np.all(np.diff(got.range_m) >= 0)   # sorted after the merge
+        assert np.all(np.isnan(batch.range_m[i, want[i]:]))   # padded beyond its count
+
+
 # ---- kernel vs numpy twin -------------------------------------------------------------------
 @st.composite
 def _scenes(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
