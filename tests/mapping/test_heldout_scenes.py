@@ -260,12 +260,19 @@ def _interior_angles_deg(outline: np.ndarray) -> np.ndarray:
     return np.asarray(180.0 - turn)
 
 
+def _outline(name: str, corners: int) -> tuple[np.ndarray, np.ndarray]:
+    """The hand-written outline of scene ``name`` (k, 2) and its interior angles (deg),
+    checked to have ``corners`` corners and a closed polygon's angle sum."""
+    outline = np.array(INTERIOR[name])
+    interior = _interior_angles_deg(outline)
+    assert len(outline) == corners and np.isclose(np.sum(interior), 180.0 * (corners - 2))
+    return outline, interior
+
+
 def test_cloister_has_no_parallel_walls_and_a_turned_column_and_mews_two_rooms_and_a_gap() -> None:
     cloister = heldout_scene("cloister")
     walls = {w.name: w for w in cloister.walls}
-    outline = np.array(INTERIOR["cloister"])
-    assert len(outline) == 7 and np.isclose(np.sum(_interior_angles_deg(outline)), 900.0)
-    interior = _interior_angles_deg(outline)
+    outline, interior = _outline("cloister", 7)
     reflex = interior > 180.0
     assert np.sum(reflex) == 1 and np.allclose(outline[reflex], [(4.3, 1.3)])
     assert np.all((interior[~reflex] > 100.0) & (interior[~reflex] < 160.0))
@@ -313,9 +320,7 @@ def test_cloister_has_no_parallel_walls_and_a_turned_column_and_mews_two_rooms_a
 def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_rooms() -> None:
     refectory = heldout_scene("refectory")
     walls = {w.name: w for w in refectory.walls}
-    outline = np.array(INTERIOR["refectory"])
-    interior = _interior_angles_deg(outline)
-    assert len(outline) == 6 and np.isclose(np.sum(interior), 720.0)
+    _, interior = _outline("refectory", 6)
     assert np.all((interior > 100.0) & (interior < 160.0))  # no right angle, no reflex corner
     assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
         "north": 0.8}
@@ -409,9 +414,7 @@ def _winding_deg(name: str, centre: np.ndarray) -> float:
 def test_lounge_has_no_right_angle_and_two_round_columns_off_centre() -> None:
     lounge = heldout_scene("lounge")
     walls = {w.name: w for w in lounge.walls}
-    outline = np.array(INTERIOR["lounge"])
-    interior = _interior_angles_deg(outline)
-    assert len(outline) == 5 and np.isclose(np.sum(interior), 540.0)
+    outline, interior = _outline("lounge", 5)
     assert np.all((interior > 100.0) & (interior < 135.0))  # no right angle, no reflex corner
     names = list(walls)
     is_outer = np.array([not n.startswith("column") for n in names])
