@@ -94,6 +94,8 @@ class _Scratch(NamedTuple):
     stamp: np.ndarray  # (W, W) int64
     valid2: np.ndarray  # (W, W) bool
     pts2: np.ndarray  # (W, W, 2, 2)
+    ts: np.ndarray  # (W,) the pose along each wall: (S - p0) . d
+    hs: np.ndarray  # (W,) and off it: d x (S - p0)
     rank: np.ndarray  # (cap,) int64: a row's echoes in order of path length
     tmp_f: np.ndarray  # (cap, 4 + 2 kmax): a row's float fields while it is permuted
     tmp_i: np.ndarray  # (cap, 1 + kmax) int64: its integer fields
@@ -106,7 +108,8 @@ def _scratch(n_walls: int, kmax: int, cap: int) -> _Scratch:
                     np.empty(kmax, dtype=np.int64), np.empty((kmax, 2)), np.empty((cap, 6)),
                     np.full((n_walls, n_walls), -1, dtype=np.int64),
                     np.zeros((n_walls, n_walls), dtype=np.bool_),
-                    np.empty((n_walls, n_walls, 2, 2)), np.empty(cap, dtype=np.int64),
+                    np.empty((n_walls, n_walls, 2, 2)), np.empty(n_walls), np.empty(n_walls),
+                    np.empty(cap, dtype=np.int64),
                     np.empty((cap, 4 + 2 * kmax)), np.empty((cap, 1 + kmax), dtype=np.int64))
 
 
@@ -178,6 +181,32 @@ def _blocked(walls: _Walls, ax: float, ay: float, bx: float, by: float, w1: int,
     return False
 
 
+#: Margin of :func:`_misses_wall` beyond the trace's own tolerances (relative to the wall):
+#: a sequence it drops is one the trace would refuse by far more than rounding.
+MISS_MARGIN = 1e-7
+
+
+@numba.njit(inline="always", **NUMBA_FLAGS)
+def _misses_wall(walls: _Walls, w: int, ix: float, iy: float, ts: float, hs: float) -> bool:
+    """Whether the last bounce, in wall w, of a path whose previous image is (ix, iy) cannot
+    exist: the receiver S (``ts``, ``hs``: its coordinates along and off the wall, scaled by
+    the wall's length) and that image lie on opposite sides of the wall's line, or the
+    bounce point falls off the segment. The trace's own test (the ray from S to the next
+    image must cross the segment), without composing the image; used to skip a sequence
+    before the work, never to accept one."""
+    dx, dy = walls.d[w, 0], walls.d[w, 1]
+    l2 = dx * dx + dy * dy
+    qx, qy = ix - walls.p0[w, 0], iy - walls.p0[w, 1]
+    ti = qx * dx + qy * dy
+    hi = dx * qy - dy * qx
+    if hs * hi <= 0.0:
+        tol = MISS_MARGIN * math.sqrt(l2)
+        return abs(hs) > tol and abs(hi) > tol   # strictly on opposite sides
+    t = ts + (ti - ts) * hs / (hs + hi)          # the bounce point along the wall
+    margin = (U_TOL + MISS_MARGIN) * l2
+    return t < -margin or t > l2 + margin
+
+
 @numba.njit(inline="always", **NUMBA_FLAGS)
 def _trace(walls: _Walls, seq: np.ndarray, k: int, img: np.ndarray, sx: float, sy: float,
            pts: np.ndarray) -> bool:
@@ -243,6 +272,10 @@ def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarra
     mA[0, 0, 0], mA[0, 0, 1], mA[0, 1, 0], mA[0, 1, 1] = 1.0, 0.0, 0.0, 1.0
     mb[0] = 0.0
     img[0, 0], img[0, 1] = sx, sy
+    for w in range(n_walls):
+        qx, qy = sx - walls.p0[w, 0], sy - walls.p0[w, 1]
+        sc.ts[w] = qx * walls.d[w, 0] + qy * walls.d[w, 1]
+        sc.hs[w] = walls.d[w, 0] * qy - walls.d[w, 1] * qx
     count = 0
     for order in range(1, kmax + 1):
         depth = 0
@@ -258,6 +291,12 @@ def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarra
             if has_corners and order == 2 and depth == 1 and corners.skip[seq[0], w]:
                 continue  # a right corner: heard at its vertex below
             seq[depth] = w
+            if depth + 1 == order and _misses_wall(walls, w, img[depth, 0], img[depth, 1],
+                                                   sc.ts[w], sc.hs[w]):
+                if order == 2:   # the reversed pair, the same path backwards, fails too
+                    sc.stamp[seq[0], w] = i
+                    sc.valid2[seq[0], w] = False
+                continue
             _compose(walls, w, mA, mb, depth)
             ix = mA[depth + 1, 0, 0] * sx + mA[depth + 1, 0, 1] * sy + mb[depth + 1, 0]
             iy = mA[depth + 1, 1, 0] * sx + mA[depth + 1, 1, 1] * sy + mb[depth + 1, 1]
