@@ -145,19 +145,6 @@ class FilterConfig:
         localization benchmark (built maps, before this test) 1.5 kept 0.78 of the blocks
         where the robot had been carried away (``jump_heard_max`` alone 0.86) and 0.09 of
         those where the dead-reckoned pose was right (0.28).
-    jump_fit_gain_min : float
-        Echo model, on a map built from runs: a block counts as evidence for a jump only
-        where the estimate's fit (``PoseEstimate.fit``: the mean of the shares of peaks
-        explained and of predicted echoes heard) exceeds the fit of the best pose near the
-        dead-reckoned one by at least this (0: no such test). A robot carried away leaves
-        the dead-reckoned pose explaining nothing while the new place explains the block;
-        a look-alike on a map missing the walls where the robot is explains it only a
-        little better than the dead-reckoned pose does. Over the far blocks of every
-        tracking and kidnap trial of the localization benchmark's 50 runs (built maps, a
-        harness from before this test), 0.5 kept 420 of the 454 blocks that counted where
-        the robot had been carried away and the estimate was right, 4 of the 35 where the
-        dead-reckoned pose was right and the estimate metres off, and 217 of the 317 where
-        both were wrong; the median gain was 0.72 where the estimate was right.
     confirm_blocks : int
         A global start has no dead reckoning to hold a jump against: its first ``converged``
         estimate is reported ``uncertain`` until it has been ``converged`` on this many
@@ -260,7 +247,6 @@ class FilterConfig:
     min_map_echoes: int = 2
     jump_heard_max: float = 0.5
     jump_missed_min: float = 1.5
-    jump_fit_gain_min: float = 0.5
     confirm_blocks: int = 8
     confirm_fit: float = 0.7
     twin_margin_nats: float = 3.0
@@ -331,9 +317,6 @@ class FilterConfig:
                 f"min_map_echoes must be an integer in [0, 100], got {self.min_map_echoes}")
         if not 0 <= self.jump_heard_max <= 1:
             raise ValueError(f"jump_heard_max must be in [0, 1], got {self.jump_heard_max}")
-        if not 0 <= self.jump_fit_gain_min <= 1:
-            raise ValueError("jump_fit_gain_min must be in [0, 1] (a difference of fits), got "
-                             f"{self.jump_fit_gain_min}")
         if not (math.isfinite(self.jump_missed_min) and self.jump_missed_min >= 0):
             raise ValueError("jump_missed_min must be finite and >= 0 (echoes), got "
                              f"{self.jump_missed_min}")
