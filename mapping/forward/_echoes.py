@@ -272,18 +272,19 @@ def _check_walls(walls: WallSet) -> None:
         raise ValueError(f"walls must be a WallSet, got {type(walls).__name__}")
 
 
-def _capacity(n_walls: int, max_order: int) -> int:
-    """Upper bound on the paths of one pose (wall sequences without repeats), capped."""
-    total = sum(n_walls * max(n_walls - 1, 0) ** (k - 1) for k in range(1, max_order + 1))
-    return max(1, min(total, 64))
-
-
 #: Slots per pose of the first pass of :func:`_run`. A pose rarely hears more than 14 paths
 #: (measured on the benchmark's maps, particle clouds of 2000: median of the most per call
 #: 5-10, largest 14), while the padded outputs of a 64-slot pass cost ~1.5 ms per filter
 #: update to allocate and fill at 2000 particles; the few poses that overflow are traced
 #: again with room for all their paths.
 FIRST_CAPACITY = 16
+
+
+def _capacity(n_walls: int, max_order: int) -> int:
+    """Slots per pose of the first pass: the number of wall sequences without repeats (an
+    upper bound on the paths of one pose), capped at :data:`FIRST_CAPACITY`."""
+    total = sum(n_walls * max(n_walls - 1, 0) ** (k - 1) for k in range(1, max_order + 1))
+    return max(1, min(total, FIRST_CAPACITY))
 
 
 def _empty_out(n: int, cap: int, max_order: int) -> _Out:
@@ -334,7 +335,7 @@ def _corners_of(segments: bytes, shape: tuple[int, ...], tol_deg: float,
 def _run(walls: WallSet, poses: FloatArray, lim: _Limits, params: ForwardParams,
          parallel: bool) -> _Out:
     n = poses.shape[0]
-    cap = min(_capacity(walls.n, lim.max_order), FIRST_CAPACITY)
+    cap = _capacity(walls.n, lim.max_order)
     corners = _kernel_corners(walls, lim, params)
     out = _traced(walls, poses, lim, corners, cap, parallel)
     over = np.flatnonzero(out.n_found > cap)
