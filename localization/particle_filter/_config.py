@@ -99,8 +99,8 @@ class FilterConfig:
         An estimate that contradicts dead reckoning - farther than the anchor gates and 4
         sigma (Mahalanobis) from where the odometry carried the last ``converged`` estimate,
         with the motion model's growing covariance - is reported ``uncertain`` until it has
-        held for this many blocks in a row (the last of them ``converged``; 0: never held
-        back). Either the
+        held for this many blocks (the last of them ``converged``; 0: never held back),
+        counting only blocks the map can judge (``reckoned_evidence``'s rules below). Either the
         robot was carried there (a kidnap, rare) or the map is wrong where the odometry
         puts it (an incomplete map, common: measured on built maps, a robot leaving the
         mapped walls was lost, then re-localized onto a look-alike that explained the blocks

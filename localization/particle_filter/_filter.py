@@ -293,7 +293,7 @@ def contradicts(pose: FloatArray, cov: FloatArray, reckoned: tuple[FloatArray, F
 def hold_jump(pose: FloatArray, cov: FloatArray,
               reckoned: tuple[FloatArray, FloatArray] | None, dwell: int,
               config: FilterConfig, evidence: float | None = None,
-              far: bool | None = None
+              far: bool | None = None, counted: bool = True
               ) -> tuple[str, tuple[FloatArray, FloatArray] | None, int]:
     """The status of a block the filter would call ``converged``, against dead reckoning.
 
@@ -304,12 +304,18 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
     one, :func:`reckoned_evidence`; None: not known, the time rule alone) reaches
     ``kidnap_prior_nats``: a jump to a look-alike that explains the blocks no better than
     where the odometry puts the robot (a map missing walls there) is never accepted.
-    ``far``: :func:`contradicts` when the caller has computed it. Returns the status, the
-    dead-reckoned pose to keep and the new count."""
+    ``far``: :func:`contradicts` when the caller has computed it. ``counted``: whether the
+    block was evidence at all (:func:`reckoned_evidence`); one that was not (the map silent
+    where the odometry puts the robot) neither advances the count nor ends the hold, so a
+    jump is believed only after ``jump_dwell_blocks`` blocks the map could judge, not after
+    a few informative blocks and a long silence. Returns the status, the dead-reckoned pose
+    to keep and the new count."""
     if reckoned is None or config.jump_dwell_blocks == 0:
         return "converged", reckoned, 0
     if not (contradicts(pose, cov, reckoned, config) if far is None else far):
         return "converged", reckoned, 0
+    if not counted:
+        return "uncertain", reckoned, dwell
     if dwell + 1 >= config.jump_dwell_blocks and (
             evidence is None or evidence >= config.kidnap_prior_nats):
         return "converged", reckoned, 0
@@ -319,7 +325,7 @@ def hold_jump(pose: FloatArray, cov: FloatArray,
 def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimate: float,
                       reckoned: tuple[FloatArray, FloatArray], gap: float, memory: float,
                       min_echoes: int = 0, heard_max: float = 1.0, missed_min: float = 0.0
-                      ) -> tuple[float, FloatArray, float]:
+                      ) -> tuple[float, FloatArray, float, bool]:
     """Evidence (nats) for a held jump: ``memory * gap + ll(estimate) - ll(best)``, ``best``
     the pose near the dead-reckoned one that explains the block best (a shrinking stencil
     from its mean, steps of its standard deviations clipped to 2-25 cm and 1-10 deg).
@@ -331,12 +337,13 @@ def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimat
     least ``heard_max`` of the echoes the map predicts at ``best`` are heard, or fewer than
     ``missed_min`` of its specular echoes go unheard (the map and the odometry agree; what
     ``best`` leaves unexplained, or does not hear, are walls the map lacks).
-    Returns the evidence, the best pose and its log-likelihood."""
+    Returns the evidence, the best pose, its log-likelihood and whether the block counted
+    (False: the map silent there, the evidence only remembered)."""
     sd = np.sqrt(np.maximum(np.diag(reckoned[1]), 0.0))
     step = (float(np.clip(sd[0], 0.02, 0.25)), float(np.clip(sd[1], 0.02, 0.25)),
             float(np.clip(sd[2], math.radians(1.0), math.radians(10.0))))
     best, ll = _rivals.refine_poses(tables, measurement, reckoned[0][None, :], step, rounds=3)
-    remembered = memory * gap, best[0], float(ll[0])
+    remembered = memory * gap, best[0], float(ll[0]), False
     if min_echoes > 0 or heard_max < 1.0 or missed_min > 0.0:
         n_best = map_echoes(tables, measurement.speed_m_s, best[0])
         if n_best < min_echoes:
@@ -345,7 +352,7 @@ def reckoned_evidence(tables: SensorTables, measurement: Measurement, ll_estimat
             heard = float(explanation(tables, measurement, best).heard[0])
             if heard >= heard_max or n_best * (1.0 - heard) < missed_min:
                 return remembered
-    return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0])
+    return memory * gap + ll_estimate - float(ll[0]), best[0], float(ll[0]), True
 
 
 def map_echoes(tables: SensorTables, speed_m_s: float, pose: FloatArray) -> int:
@@ -581,11 +588,12 @@ class ParticleFilter:
         # the particles' estimate against dead reckoning from the last confirmed convergence:
         # far from it, the blocks must prefer it by the kidnap prior before it is believed
         evidence: float | None = None
+        counted = True
         far = confirmed and reckoned is not None and contradicts(estimate.pose, estimate.cov,
                                                                  reckoned, cfg)
         if far and reckoned is not None:
             if echo and meas is not None and at_estimate is not None:
-                evidence, best, _ = reckoned_evidence(
+                evidence, best, _, counted = reckoned_evidence(
                     self.tables, meas, float(at_estimate.log_likelihood[0]), reckoned,
                     self.jump_gap, cfg.rival_memory, cfg.min_map_echoes,
                     # a complete map claims every wall: every block counts there
@@ -596,7 +604,7 @@ class ParticleFilter:
             jump_gap = self.jump_gap if evidence is None else evidence
         if status == "converged" and confirmed:
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
-                                                cfg, evidence, far)
+                                                cfg, evidence, far, counted)
         elif status == "converged":
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg, fit)

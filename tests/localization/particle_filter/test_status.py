@@ -227,6 +227,32 @@ def test_a_held_jump_needs_evidence_against_the_dead_reckoned_pose() -> None:
     assert hold_jump(far, tight, reckoned, 0, config, evidence=60.0)[0] == "uncertain"
 
 
+def test_a_held_jump_counts_only_blocks_the_map_can_judge() -> None:
+    """A block that was no evidence (``counted`` false: the map silent where the odometry
+    puts the robot) neither advances the dwell nor ends the hold, however much evidence is
+    remembered from earlier blocks: measured on the fresh14g cloister's built map, two
+    informative blocks gave 20 nats, then 23 silent blocks ran the dwell out and a look-alike
+    5 m off was reported converged for 9 blocks. Counted blocks still end it after the
+    dwell."""
+    config = dataclasses.replace(CONFIG, jump_dwell_blocks=3, kidnap_prior_nats=5.0)
+    tight = np.diag([0.02**2, 0.02**2, math.radians(2.0) ** 2])
+    reckoned = (np.array([1.0, 1.0, 0.0]), tight)
+    far = np.array([4.0, 2.0, 3.0])
+    status, _, dwell = hold_jump(far, tight, reckoned, 0, config, evidence=20.0)
+    assert (status, dwell) == ("uncertain", 1)
+    for _ in range(20):
+        status, kept, dwell = hold_jump(far, tight, reckoned, dwell, config, evidence=20.0,
+                                        counted=False)
+        assert (status, dwell) == ("uncertain", 1) and kept is reckoned
+    seen = []
+    for _ in range(2):
+        status, _, dwell = hold_jump(far, tight, reckoned, dwell, config, evidence=20.0)
+        seen.append(status)
+    assert seen == ["uncertain", "converged"]
+    near = np.array([1.05, 1.0, 0.02])   # no jump: a silent block changes nothing
+    assert hold_jump(near, tight, reckoned, 0, config, counted=False)[::2] == ("converged", 0)
+
+
 def test_reckoned_evidence_tells_where_the_robot_is(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
     """Ground truth: a dead-reckoned pose a few cm off the truth is refined onto it and
@@ -237,12 +263,12 @@ def test_reckoned_evidence_tells_where_the_robot_is(
     meas = prepare_measurement(hms[k], ECHO)
     ll_truth = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
     near = (truth[k] + np.array([0.03, -0.02, math.radians(2.0)]), TIGHT)
-    ev, best, ll = reckoned_evidence(tables, meas, ll_truth, near, 0.0, 0.9)
+    ev, best, ll, _ = reckoned_evidence(tables, meas, ll_truth, near, 0.0, 0.9)
     assert abs(ev) < 1.0 and float(np.hypot(*(best[:2] - truth[k][:2]))) < 0.02
     away = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)
-    ev_far, _, _ = reckoned_evidence(tables, meas, ll_truth, away, 0.0, 0.9)
+    ev_far, _, _, _ = reckoned_evidence(tables, meas, ll_truth, away, 0.0, 0.9)
     assert ev_far > 5.0
-    ev_mem, _, _ = reckoned_evidence(tables, meas, ll_truth, near, 10.0, 0.9)
+    ev_mem, _, _, _ = reckoned_evidence(tables, meas, ll_truth, near, 10.0, 0.9)
     assert ev_mem == pytest.approx(9.0 + ev, abs=1e-9)
 
 
@@ -272,14 +298,15 @@ def test_a_silent_map_gives_no_evidence_for_a_jump(tables: SensorTables,
     meas = prepare_measurement(hms[k], ECHO)
     ll_truth = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
     outside = (np.array([30.0, 30.0, 0.0]), TIGHT)          # far beyond the room's walls
-    open_gate, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 0.0, 0.9)
+    open_gate, _, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 0.0, 0.9)
     assert open_gate > 5.0
-    gated, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 4.0, 0.9, min_echoes=2)
-    assert gated == pytest.approx(0.9 * 4.0)
+    gated, _, _, silent = reckoned_evidence(tables, meas, ll_truth, outside, 4.0, 0.9,
+                                            min_echoes=2)
+    assert gated == pytest.approx(0.9 * 4.0) and not silent
     inside = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)  # the map speaks there
-    a, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9)
-    b, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9, min_echoes=2)
-    assert a == b > 5.0
+    a, _, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9)
+    b, _, _, counted = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9, min_echoes=2)
+    assert a == b > 5.0 and counted
     with pytest.raises(ValueError, match="^min_map_echoes must be"):
         FilterConfig(min_map_echoes=-1)
     with pytest.raises(ValueError, match="^report_reckoned must be"):
@@ -302,18 +329,19 @@ def test_walls_missing_from_the_map_give_no_evidence_for_a_jump(
     at_truth = explanation(partial, meas, truth[k][None, :])
     assert at_truth.heard[0] >= 0.9 and at_truth.explained[0] < 0.9
     near = (truth[k], TIGHT)
-    open_gate, _, _ = reckoned_evidence(partial, meas, ll_lookalike, near, 0.0, 0.9)
+    open_gate, _, _, _ = reckoned_evidence(partial, meas, ll_lookalike, near, 0.0, 0.9)
     assert open_gate > 2.0
-    gated, _, _ = reckoned_evidence(partial, meas, ll_lookalike, near, 2.0, 0.9, heard_max=0.5)
-    assert gated == pytest.approx(0.9 * 2.0)
+    gated, _, _, counted = reckoned_evidence(partial, meas, ll_lookalike, near, 2.0, 0.9,
+                                             heard_max=0.5)
+    assert gated == pytest.approx(0.9 * 2.0) and not counted
     away = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)
     assert explanation(partial, meas, away[0][None, :]).heard[0] < 0.5
-    a, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9)
-    b, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5)
+    a, _, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9)
+    b, _, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5)
     assert a == b > 5.0
-    c, _, _ = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9, heard_max=0.5,
-                                missed_min=1.5)
-    assert c == a                                       # most echoes missed: still counts
+    c, _, _, counted = reckoned_evidence(partial, meas, ll_lookalike, away, 0.0, 0.9,
+                                         heard_max=0.5, missed_min=1.5)
+    assert c == a and counted                     # most echoes missed: still counts
     with pytest.raises(ValueError, match="^jump_heard_max must be"):
         FilterConfig(jump_heard_max=1.5)
 
@@ -337,9 +365,9 @@ def test_one_missing_echo_of_two_is_no_evidence_for_a_jump(
     assert 0.25 < at_truth.heard[0] < 0.55              # one of the two
     ll_lookalike = float(explanation(tables, meas, truth[k][None, :]).log_likelihood[0])
     near = (truth[k], TIGHT)
-    counted, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 0.0, 0.9, 2, 0.5)
+    counted, _, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 0.0, 0.9, 2, 0.5)
     assert counted > 5.0
-    gated, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 2.0, 0.9, 2, 0.5, 1.5)
+    gated, _, _, _ = reckoned_evidence(built, meas, ll_lookalike, near, 2.0, 0.9, 2, 0.5, 1.5)
     assert gated == pytest.approx(0.9 * 2.0)
     with pytest.raises(ValueError, match="^jump_missed_min must be"):
         FilterConfig(jump_missed_min=-1.0)
