@@ -13,6 +13,7 @@ from benchmarks._heldout import (
     heldout_scene_names,
 )
 from benchmarks.wall_maps import score_map
+from mapping.angles import wrap_angle
 from mapping.coverage import coverage_mask
 from mapping.path import min_wall_distance_m
 from mapping.quality import distance_to_walls
@@ -31,6 +32,7 @@ FRESH14F = ("vestry", "landing")  # written after the silent-map rule: group "fr
 FRESH14G = ("cloister", "mews")  # written after the jump-evidence rule: group "fresh14g"
 FRESH14H = ("refectory", "loft")  # written after the confirm and missed-echo rules: "fresh14h"
 FRESH14I = ("lounge", "arcade", "library")  # written at the start of session 31: "fresh14i"
+FRESH14J = ("rotunda", "foundry", "cellar")  # written at the start of session 32: "fresh14j"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -82,6 +84,12 @@ INTERIOR = {
                (3.9, 4.2), (3.9, 3.6), (2.6, 3.6), (2.6, 4.2), (1.4, 4.2), (1.4, 3.6), (0.0, 3.6)],
     "library": [(0.0, 0.0), (10.0, 0.0), (10.0, 7.2), (6.6, 7.2), (6.6, 3.0), (3.0, 3.0),
                 (3.0, 8.0), (0.0, 8.0)],
+    "rotunda": [(2.63604, 0.0), (4.7, 0.0), (4.7, -0.3), (5.6, -0.3), (5.6, 0.0), (6.36396, 0.0),
+                (9.0, 2.63604), (9.0, 6.36396), (6.36396, 9.0), (2.63604, 9.0), (0.0, 6.36396),
+                (0.0, 2.63604)],
+    "foundry": [(0.0, 0.0), (10.0, 0.0), (10.0, 6.8), (0.0, 6.8)],
+    "cellar": [(0.6, 0.8), (5.8, 0.0), (9.6, 1.8), (9.0, 5.6), (6.3, 6.6), (4.3, 5.4), (1.1, 6.8),
+               (0.4, 6.2)],
 }
 
 
@@ -120,6 +128,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
+    assert set(FRESH14J) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -131,7 +140,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14f" if spec.scene in FRESH14F
                     else "fresh14g" if spec.scene in FRESH14G
                     else "fresh14h" if spec.scene in FRESH14H
-                    else "fresh14i" if spec.scene in FRESH14I else "held-out")
+                    else "fresh14i" if spec.scene in FRESH14I
+                    else "fresh14j" if spec.scene in FRESH14J else "held-out")
         assert spec.group == expected
 
 
@@ -530,6 +540,156 @@ def test_library_is_a_u_whose_east_wing_the_mapped_curve_never_sees() -> None:
     assert distance_to_walls(line, path_segments).max() < 0.02
 
 
+def _positions(name: str, n: int = 1000) -> np.ndarray:
+    """Positions (n, 2) evenly spaced in time (so in arc length) along the path ``name``."""
+    trajectory = heldout_path(name).trajectory()
+    return np.asarray(trajectory.position(np.linspace(0.0, trajectory.duration_s, n)))
+
+
+def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.ndarray:
+    """Which ``points`` (n, 2) the project's own line of sight (the map's coverage, 5 cm grid)
+    reaches from any of the positions ``seen_from`` past the wall segments ``walls`` (k, 2, 2)."""
+    gx = np.arange(points[:, 0].min() - 0.1, points[:, 0].max() + 0.1, 0.05)
+    gy = np.arange(points[:, 1].min() - 0.1, points[:, 1].max() + 0.1, 0.05)
+    poses = np.column_stack([seen_from, np.zeros(len(seen_from))])
+    seen = coverage_mask(poses, gx, gy, 50.0, walls.reshape(-1, 4))
+    ix = np.abs(gx[None, :] - points[:, :1]).argmin(axis=1)
+    iy = np.abs(gy[None, :] - points[:, 1:]).argmin(axis=1)
+    return np.asarray(seen[iy, ix])
+
+
+def test_the_fresh14j_paths_are_8_to_10_m_long() -> None:
+    names = [n for scene in FRESH14J for n in heldout_path_names(scene)]
+    assert len(names) == 9 and all(heldout_path(n).group == "fresh14j" for n in names)
+    for name in names:
+        assert 8.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
+
+
+def test_rotunda_is_a_regular_octagon_whose_only_asymmetry_is_an_off_centre_doorway() -> None:
+    rotunda = heldout_scene("rotunda")
+    walls = {w.name: w for w in rotunda.walls}
+    assert all(w.reflection is None for w in rotunda.walls)  # no material breaks the symmetry
+    outline = np.array(INTERIOR["rotunda"])
+    octagon = np.delete(outline, [1, 2, 3, 4], axis=0)  # the outline without the doorway
+    interior = _interior_angles_deg(octagon)
+    assert len(octagon) == 8 and np.allclose(interior, 135.0, atol=1e-3)
+    centre = octagon.mean(axis=0)
+    assert np.allclose(centre, (4.5, 4.5))
+    assert np.allclose(np.linalg.norm(octagon - centre, axis=1), 4.871, atol=1e-3)
+    sides = np.linalg.norm(np.roll(octagon, -1, axis=0) - octagon, axis=1)
+    assert np.allclose(sides, 3.728, atol=1e-4)  # regular to 0.1 mm
+    segments = rotunda.segments()
+    # the doorway: a 0.9 m gap in the south wall, 0.65 m east of its middle, two 0.3 m jambs
+    # running south (the wall's thickness) to free ends, nothing beyond
+    door = np.array([[5.15, 0.0]])
+    assert abs(distance_to_walls(door, segments)[0] - 0.45) < 1e-9
+    assert abs(door[0, 0] - (octagon[0, 0] + octagon[1, 0]) / 2.0 - 0.65) < 1e-4
+    names = list(walls)
+    for jamb in ("doorway west jamb", "doorway east jamb"):
+        assert abs(walls[jamb].length_m - 0.3) < 1e-9
+        assert abs(_directions_deg("rotunda")[names.index(jamb)] - 90.0) < 1e-9
+        ends = np.array([walls[jamb].start, walls[jamb].end], dtype=np.float64)
+        free = ends[np.argmin(ends[:, 1])]
+        others = np.array([segments[k] for k, n in enumerate(names) if n != jamb])
+        assert free[1] == -0.3 and distance_to_walls(free[None], others)[0] > 0.29  # free end
+    # every other symmetry of the octagon (7 rotations, 8 mirrors through the centre) maps it
+    # onto itself but the doorway onto a wall: only the doorway tells the room from its images
+    rotations = [np.radians(45.0 * k) for k in range(1, 8)]
+    mirrors = [np.radians(22.5 * k) for k in range(8)]
+    maps = ([np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) for a in rotations]
+            + [np.array([[np.cos(2 * a), np.sin(2 * a)], [np.sin(2 * a), -np.cos(2 * a)]])
+               for a in mirrors])
+    assert len(maps) == 15
+    for m in maps:
+        assert distance_to_walls((octagon - centre) @ m.T + centre, segments).max() < 1e-4
+        assert distance_to_walls((door - centre) @ m.T + centre, segments)[0] < 1e-4
+    # the mapped curve: the south half only, past the doorway; rotunda-north: the north half only,
+    # and turned by half a turn about the centre it lies on the mapped curve to 0.6 m;
+    # rotunda-cross: across the middle from one half to the other
+    curve = _positions("rotunda-curve")
+    assert curve[:, 1].max() < centre[1] - 0.5
+    assert np.linalg.norm(curve - door, axis=1).min() < 1.1
+    north = _positions("rotunda-north")
+    assert north[:, 1].min() > centre[1] + 0.4
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(2.0 * centre - north, curve_segments).max() < 0.65
+    assert np.linalg.norm(north - door, axis=1).min() > 5.0
+    cross = _positions("rotunda-cross")
+    assert np.linalg.norm(cross - centre, axis=1).min() < 0.2
+    assert cross[0, 1] < centre[1] - 1.0 and cross[-1, 1] > centre[1] + 1.0
+
+
+def test_foundry_hides_a_strip_behind_a_partition_and_foundry_line_drives_a_new_heading() -> None:
+    foundry = heldout_scene("foundry")
+    walls = {w.name: w for w in foundry.walls}
+    assert all(w.reflection is None for w in foundry.walls)
+    _, interior = _outline("foundry", 4)
+    assert np.allclose(interior, 90.0)
+    assert (walls["east"].start[0], walls["north"].start[1]) == (10.0, 6.8)
+    partition = walls["partition"]
+    assert abs(partition.length_m - 6.2) < 1e-9 and partition.start[1] == partition.end[1] == 4.6
+    assert abs(walls["north"].start[1] - partition.start[1] - 2.2) < 1e-9  # the strip behind
+    assert (partition.start[0], 10.0 - partition.end[0]) == (2.4, 10.0 - 8.6)  # the two gaps
+    segments = foundry.segments()
+    names = list(walls)
+    outer = np.array([segments[k] for k, n in enumerate(names) if n != "partition"])
+    ends = np.array([partition.start, partition.end], dtype=np.float64)
+    assert distance_to_walls(ends, outer).min() > 1.3  # both ends free
+    curve = _positions("foundry-curve", 400)
+    assert curve[:, 1].max() < 4.6 - 0.6  # south of the partition only
+    # foundry-behind's last third: behind the partition, never in sight of the mapped curve;
+    # control: without the partition all of it is in sight
+    drive = heldout_path("foundry-behind").trajectory()
+    hidden = drive.position(np.linspace(2.0 * drive.duration_s / 3.0, drive.duration_s, 200))
+    assert np.all(hidden[:, 1] > 4.6 + 0.5)
+    assert np.all((hidden[:, 0] > partition.start[0]) & (hidden[:, 0] < partition.end[0]))
+    assert not _seen(hidden, curve, segments).any()
+    assert _seen(hidden, curve, outer).all()
+    assert _seen(drive.position(np.array([0.0])), curve, segments).all()  # starts in sight
+    # foundry-line: all in sight of the curve, at a heading at least 60 deg from every one of it
+    line = _positions("foundry-line", 300)
+    assert _seen(line, curve, segments).all()
+    headings = {}
+    for name in ("foundry-curve", "foundry-line"):
+        trajectory = heldout_path(name).trajectory()
+        headings[name] = trajectory.heading_rad(np.linspace(0.0, trajectory.duration_s, 1000))
+    apart = np.abs(wrap_angle(headings["foundry-line"][:, None] - headings["foundry-curve"][None]))
+    assert np.degrees(apart.min()) > 60.0
+
+
+def test_cellar_has_no_right_angle_an_obtuse_reflex_corner_a_short_wall_and_mixed_walls() -> None:
+    cellar = heldout_scene("cellar")
+    walls = {w.name: w for w in cellar.walls}
+    outline, interior = _outline("cellar", 8)
+    assert len(walls) == 8
+    assert np.all(np.abs(interior - 90.0) > 10.0)  # no right angle
+    reflex = interior > 180.0
+    assert np.sum(reflex) == 1 and np.allclose(outline[reflex], [(4.3, 5.4)])
+    assert 90.0 < 360.0 - interior[reflex][0] < 180.0  # an obtuse point into the room (125 deg)
+    assert np.all((interior[~reflex] > 100.0) & (interior[~reflex] < 150.0))
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east": 0.7, "north-east": 0.9, "bastion west": 0.5}
+    lengths = {n: w.length_m for n, w in walls.items()}
+    assert [n for n, length in lengths.items() if length < 1.0] == ["chamfer"]
+    assert 0.9 < lengths["chamfer"] and min(lengths[n] for n in lengths if n != "chamfer") > 2.3
+    tip = outline[reflex][0]
+    assert _positions("cellar-curve")[:, 1].max() < tip[1] - 0.9  # out of both north lobes
+    # cellar-back goes out and comes back: its heading turns round, it ends near its start
+    trajectory = heldout_path("cellar-back").trajectory()
+    t = np.linspace(0.0, trajectory.duration_s, 2000)
+    xy = trajectory.position(t)
+    heading = trajectory.heading_rad(t)
+    assert abs(abs(np.degrees(wrap_angle(heading[-1] - heading[0]))) - 180.0) < 0.5
+    assert np.linalg.norm(xy - xy[0], axis=1).max() > 4.0
+    assert np.linalg.norm(xy[-1] - xy[0]) < 1.0
+    # cellar-bastion: round below the bastion's tip from the north-east lobe to the north-west one
+    bastion = _positions("cellar-bastion")
+    assert bastion[0, 0] > tip[0] + 3.0 and bastion[-1, 0] < tip[0] - 2.0
+    assert bastion[-1, 1] > tip[1]
+    assert np.linalg.norm(bastion - tip, axis=1).min() < 1.1
+    assert abs(_winding_deg("cellar-bastion", tip)) > 120.0
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -551,7 +711,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14f": FRESH14B_CLEARANCE_M,
                  "fresh14g": FRESH14B_CLEARANCE_M,
                  "fresh14h": FRESH14B_CLEARANCE_M,
-                 "fresh14i": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14i": FRESH14B_CLEARANCE_M,
+                 "fresh14j": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
