@@ -390,6 +390,17 @@ def confirm_start(pose: FloatArray, cov: FloatArray,
     return "uncertain", (np.array(pose, dtype=np.float64), np.array(cov, dtype=np.float64)), count
 
 
+def reconfirm(candidate: bool, fit: float, count: int, config: FilterConfig) -> int:
+    """The count of :attr:`ParticleFilter.recovery` after one more block while the filter
+    re-confirms after a ``lost`` block (``FilterConfig.reconfirm_blocks``): ``count``
+    blocks in a row led to it; this one adds one when it is a ``candidate`` (the filter
+    would call it converged before any hold on a jump) with a ``fit`` (NaN: not known) of
+    at least ``FilterConfig.confirm_fit``, else the count starts again at 0. The status may
+    be ``converged`` once the count reaches ``reconfirm_blocks``."""
+    good = candidate and not (math.isfinite(fit) and fit < config.confirm_fit)
+    return count + 1 if good else 0
+
+
 def kld_count(poses: FloatArray, config: FilterConfig) -> int:
     """Particles needed for KL error ``kld_epsilon`` at confidence ``1 - kld_delta``."""
     keys = np.stack([np.floor(poses[:, 0] / config.kld_bin_m),
@@ -439,6 +450,7 @@ class ParticleFilter:
         self.dwell = 0
         self.jump_gap = 0.0
         self.confirmed = False
+        self.recovery = -1
         if pose is None:
             self.reset_global()
         else:
@@ -464,6 +476,7 @@ class ParticleFilter:
         self.dwell = 0
         self.jump_gap = 0.0
         self.confirmed = False
+        self.recovery = -1
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -482,6 +495,7 @@ class ParticleFilter:
         self.dwell = 0
         self.jump_gap = 0.0
         self.confirmed = True
+        self.recovery = -1
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
                               and math.sqrt(max(c[2, 2], 0.0)) <= cl.converged_std_rad)
@@ -580,6 +594,7 @@ class ParticleFilter:
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
                               cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
+        candidate = status
         reckoned = (None if self.reckoned is None else
                     refine.predict(self.reckoned[0], self.reckoned[1], speed_m_s,
                                    yaw_rate_rad_s, dt_s, cfg.motion))
@@ -609,6 +624,18 @@ class ParticleFilter:
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg, fit)
             confirmed = status == "converged"
+        # after a lost block, convergence must be re-confirmed by well-explained blocks
+        # (a jump the hold accepted moves the dead-reckoned pose all the same)
+        accepted = status == "converged"
+        recovery = self.recovery
+        if candidate == "lost" and cfg.reconfirm_blocks > 0 and echo:
+            recovery = 0
+        elif recovery >= 0 and meas is not None:
+            recovery = reconfirm(candidate == "converged", fit, recovery, cfg)
+            if status == "converged" and recovery >= cfg.reconfirm_blocks:
+                recovery = -1
+            elif status == "converged":
+                status = "uncertain"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         particles_pose = estimate.pose
         if (cfg.report_reckoned and far and reckoned is not None and status != "converged"
@@ -683,9 +710,10 @@ class ParticleFilter:
         self.misfits = misfits
         self.anchored = anchored
         self.last_pose = (particles_pose if estimate.reckoned else estimate.pose).copy()
-        if estimate.status == "converged":
+        if accepted:
             reckoned = (estimate.pose.copy(), estimate.cov.copy())   # the reported pose
         self.reckoned, self.dwell, self.confirmed = reckoned, dwell, confirmed
+        self.recovery = recovery
         self.jump_gap = jump_gap
         self.twin_gap = twin_gap
         self.rivals = held
@@ -755,6 +783,7 @@ class ParticleFilter:
                              else self.reckoned[1].copy()),
             "dwell": np.array(self.dwell, dtype=np.int64),
             "confirmed": np.array(self.confirmed),
+            "recovery": np.array(self.recovery, dtype=np.int64),
             "jump_gap": np.array(self.jump_gap, dtype=np.float64),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
         }
@@ -803,6 +832,7 @@ class ParticleFilter:
         pf.confirmed = (bool(state["confirmed"]) if "confirmed" in state
                         else pf.reckoned is not None)
         pf.jump_gap = float(state["jump_gap"]) if "jump_gap" in state else 0.0
+        pf.recovery = int(state["recovery"]) if "recovery" in state else -1
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(
                 np.array(state["scatter_range_m"], dtype=np.float64).reshape(-1),

@@ -646,6 +646,8 @@ def test_checkpoint_keeps_a_held_jump(
     np.testing.assert_array_equal(clone.reckoned[0], pf.reckoned[0])
     forgetful = _round_trip(pf, tables)
     forgetful.reckoned = None
+    forgetful.recovery = -1     # nor re-confirming after the lost blocks
+    assert clone.recovery == pf.recovery >= 0
     a, b = pf.step(k_hms[k], *KIDNAP_ODO[k], DT), clone.step(k_hms[k], *KIDNAP_ODO[k], DT)
     assert _same(a, b) and a.status == "uncertain" and pf.dwell == clone.dwell
     assert forgetful.step(k_hms[k], *KIDNAP_ODO[k], DT).status == "converged"
