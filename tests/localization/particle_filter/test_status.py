@@ -29,6 +29,7 @@ from localization.particle_filter._filter import (  # not exported: tested direc
     map_echoes,
     propose,
     reckoned_evidence,
+    reconfirm,
 )
 from localization.sensor import (
     SensorConfig,
@@ -181,6 +182,47 @@ def test_tracking_converges_and_a_kidnap_is_reported_and_recovered(
     assert errors[-1] < 0.2 and statuses[-1] == "converged"
     # the jump against the odometry is held: uncertain for at least 2 blocks once back
     assert min(i for i, s in enumerate(statuses) if s == "converged") >= back[0] + 2
+
+
+def test_reconfirm_counts_well_explained_candidates_in_a_row() -> None:
+    """``reconfirm``: a candidate block (one the filter would call converged) with a fit of
+    at least confirm_fit adds one; a poor fit or a block that is no candidate starts again;
+    an unknown fit (NaN) does not stop a candidate."""
+    cfg = dataclasses.replace(CONFIG, confirm_fit=0.7)
+    assert reconfirm(True, 0.8, 0, cfg) == 1
+    assert reconfirm(True, 0.8, 2, cfg) == 3
+    assert reconfirm(True, 0.69, 2, cfg) == 0
+    assert reconfirm(False, 0.95, 2, cfg) == 0
+    assert reconfirm(True, math.nan, 1, cfg) == 2
+    with pytest.raises(ValueError, match="^reconfirm_blocks must be"):
+        FilterConfig(reconfirm_blocks=-1)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_after_a_lost_block_converged_waits_for_well_explained_blocks(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]], seed: int) -> None:
+    """Kidnapped with the hold on jumps off, so that re-confirmation alone gates the status:
+    once lost, the filter says converged only after reconfirm_blocks blocks in a row that
+    would be converged and are explained with a fit of at least confirm_fit; without it
+    (0), at the first such block. Same seed: the estimates agree within 3 cm (only the
+    converged blocks are refined), the status differs."""
+    runs = {}
+    for n in (0, 3):
+        cfg = dataclasses.replace(CONFIG, jump_dwell_blocks=0, reconfirm_blocks=n)
+        pf, _ = _tracked(tables, track, seed, cfg)
+        _, k_hms = kidnap
+        runs[n] = [pf.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
+    for a, b in zip(runs[0], runs[3], strict=True):
+        assert float(np.hypot(*(a.pose[:2] - b.pose[:2]))) < 0.03
+    s0, s3 = [e.status for e in runs[0]], [e.status for e in runs[3]]
+    last_lost = max(i for i, s in enumerate(s0) if s == "lost")
+    assert s3[: last_lost + 1] == s0[: last_lost + 1]
+    first0 = s0.index("converged", last_lost)
+    first3 = s3.index("converged", last_lost)
+    assert first3 >= first0 + 2
+    assert all(s == "uncertain" for s in s3[last_lost + 1: first3])
+    assert all(e.fit >= CONFIG.confirm_fit for e in runs[3][first3 - 2: first3 + 1])
 
 
 def test_a_jump_against_dead_reckoning_is_held_then_accepted() -> None:
