@@ -171,14 +171,14 @@ class FilterConfig:
         global starts that were metres off: median fit 0.70, against 0.82 for those at the
         truth on built maps and 0.86 on ideal maps).
     reconfirm_blocks : int
-        Echo model: after a ``lost`` block, a block is ``converged`` again only once this many
-        blocks in a row would be (every other rule passed) with a fit of at least
-        ``confirm_fit`` (0: at once, as before). Being lost says the map stopped explaining
-        the blocks where the filter was; the first estimate that explains one above
-        ``fit_threshold`` is often where the odometry carried the old pose, not where the
-        robot is. Measured on the kitchen's built map: kidnapped 1.5 m, lost for 4 blocks,
-        then ``converged`` 2.1-2.5 m and 90 deg off for 3 of the next 6 blocks at fits of
-        0.64-0.69.
+        Echo model: after a block the estimate does not explain (fit below
+        ``fit_threshold``), a block is ``converged`` again only once this many blocks in a
+        row would be (every other rule passed) with a fit of at least ``confirm_fit`` (0: at
+        once, as before). A misfit says the map stopped explaining the blocks where the
+        filter was; the first estimate that explains one above ``fit_threshold`` is often
+        where the odometry carried the old pose, not where the robot is. Measured on the
+        kitchen's built map: kidnapped 1.5-2.1 m, one to four blocks missed, then
+        ``converged`` 2.1-2.5 m and 90 deg off at fits of 0.64-0.69.
     twin_margin_nats : float
         Echo model: a symmetric twin of the estimate (its image under a symmetry of the
         walls, :func:`localization.sensor.wall_symmetries`) is a *rival* while the evidence

@@ -392,7 +392,7 @@ def confirm_start(pose: FloatArray, cov: FloatArray,
 
 def reconfirm(candidate: bool, fit: float, count: int, config: FilterConfig) -> int:
     """The count of :attr:`ParticleFilter.recovery` after one more block while the filter
-    re-confirms after a ``lost`` block (``FilterConfig.reconfirm_blocks``): ``count``
+    re-confirms after a misfit (``FilterConfig.reconfirm_blocks``): ``count``
     blocks in a row led to it; this one adds one when it is a ``candidate`` (the filter
     would call it converged before any hold on a jump) with a ``fit`` (NaN: not known) of
     at least ``FilterConfig.confirm_fit``, else the count starts again at 0. The status may
@@ -624,11 +624,11 @@ class ParticleFilter:
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg, fit)
             confirmed = status == "converged"
-        # after a lost block, convergence must be re-confirmed by well-explained blocks
+        # after a misfit, convergence must be re-confirmed by well-explained blocks
         # (a jump the hold accepted moves the dead-reckoned pose all the same)
         accepted = status == "converged"
         recovery = self.recovery
-        if candidate == "lost" and cfg.reconfirm_blocks > 0 and echo:
+        if misfits > 0 and cfg.reconfirm_blocks > 0 and echo:
             recovery = 0
         elif recovery >= 0 and meas is not None:
             recovery = reconfirm(candidate == "converged", fit, recovery, cfg)
@@ -699,7 +699,7 @@ class ParticleFilter:
                     poses = propose(poses, int(round(share * n_out)), self.tables, meas,
                                     cfg.proposal_candidates, self.rng)
         track, scatter, report = self._refine(estimate, meas, echo, speed_m_s,
-                                              yaw_rate_rad_s, dt_s)
+                                              yaw_rate_rad_s, dt_s, accepted)
         if track is not None and report:
             estimate = dataclasses.replace(estimate, pose=track[0].copy(), cov=track[1].copy(),
                                            refined=True)
@@ -723,16 +723,18 @@ class ParticleFilter:
         return estimate
 
     def _refine(self, estimate: PoseEstimate, meas: Measurement | None, echo: bool,
-                speed_m_s: float, yaw_rate_rad_s: float, dt_s: float
+                speed_m_s: float, yaw_rate_rad_s: float, dt_s: float, accepted: bool
                 ) -> tuple[tuple[FloatArray, FloatArray] | None, refine.Scatter, bool]:
         """The Gaussian refinement of a converged mode (:mod:`localization.refine`): carried
         by the odometry, restarted from the particles' mode when the two disagree, updated
-        with the block. Returns the Gaussian to keep (None when the status is not
-        ``converged`` or the model is not the echo model), the residuals kept and whether
+        with the block. ``accepted``: the block passed every rule for ``converged`` but
+        re-confirmation (which gates the status, not the estimate). Returns the Gaussian to
+        keep (None when not accepted or the model is not the echo model), the residuals kept
+        and whether
         the Gaussian is reported for this block (not when it could not explain the block:
         the particles' mode is reported, the Gaussian kept as predicted)."""
         rc = self.config.refine
-        if not (rc.enabled and echo and estimate.status == "converged"):
+        if not (rc.enabled and echo and accepted):
             return None, self.scatter, False
         track = self.track
         if track is not None:

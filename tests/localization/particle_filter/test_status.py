@@ -199,11 +199,11 @@ def test_reconfirm_counts_well_explained_candidates_in_a_row() -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_after_a_lost_block_converged_waits_for_well_explained_blocks(
+def test_after_a_misfit_converged_waits_for_well_explained_blocks(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
         kidnap: tuple[FloatArray, list[HeatMap]], seed: int) -> None:
     """Kidnapped with the hold on jumps off, so that re-confirmation alone gates the status:
-    once lost, the filter says converged only after reconfirm_blocks blocks in a row that
+    after a misfit, the filter says converged only after reconfirm_blocks blocks in a row that
     would be converged and are explained with a fit of at least confirm_fit; without it
     (0), at the first such block. Same seed: the estimates agree within 3 cm (only the
     converged blocks are refined), the status differs."""
