@@ -368,13 +368,7 @@ def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_room
     seen_from = curve.position(np.linspace(0.0, curve.duration_s, 400))
     assert seen_from[:, 0].max() < corners[:, 0].min() - 1.0
     # the project's own line of sight (the map's coverage) on a 5 cm grid over the bay
-    gx = np.arange(bay[:, 0].min() - 0.1, bay[:, 0].max() + 0.1, 0.05)
-    gy = np.arange(bay[:, 1].min() - 0.1, bay[:, 1].max() + 0.1, 0.05)
-    poses = np.column_stack([seen_from, np.zeros(len(seen_from))])
-    seen = coverage_mask(poses, gx, gy, 50.0, segments.reshape(-1, 4))
-    ix = np.abs(gx[None, :] - bay[:, :1]).argmin(axis=1)
-    iy = np.abs(gy[None, :] - bay[:, 1:]).argmin(axis=1)
-    assert not seen[iy, ix].any()
+    assert not _seen(bay, seen_from, segments).any()
     drive = heldout_path("refectory-bay").trajectory()
     driven = drive.position(np.linspace(0.0, drive.duration_s, 1000))
     path_segments = np.stack([driven[:-1], driven[1:]], axis=1)
