@@ -730,9 +730,8 @@ class ParticleFilter:
         with the block. ``accepted``: the block passed every rule for ``converged`` but
         re-confirmation (which gates the status, not the estimate). Returns the Gaussian to
         keep (None when not accepted or the model is not the echo model), the residuals kept
-        and whether
-        the Gaussian is reported for this block (not when it could not explain the block:
-        the particles' mode is reported, the Gaussian kept as predicted)."""
+        and whether the Gaussian is reported for this block (not when it could not explain
+        the block: the particles' mode is reported, the Gaussian kept as predicted)."""
         rc = self.config.refine
         if not (rc.enabled and echo and accepted):
             return None, self.scatter, False

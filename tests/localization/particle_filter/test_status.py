@@ -205,8 +205,8 @@ def test_after_a_misfit_converged_waits_for_well_explained_blocks(
     """Kidnapped with the hold on jumps off, so that re-confirmation alone gates the status:
     after a misfit, the filter says converged only after reconfirm_blocks blocks in a row that
     would be converged and are explained with a fit of at least confirm_fit; without it
-    (0), at the first such block. Same seed: the estimates agree within 3 cm (only the
-    converged blocks are refined), the status differs."""
+    (0), at the first such block. Same seed: the estimates agree within 3 cm (the
+    refinement follows an accepted estimate either way), only the status differs."""
     runs = {}
     for n in (0, 3):
         cfg = dataclasses.replace(CONFIG, jump_dwell_blocks=0, reconfirm_blocks=n)
@@ -342,9 +342,9 @@ def test_a_silent_map_gives_no_evidence_for_a_jump(tables: SensorTables,
     outside = (np.array([30.0, 30.0, 0.0]), TIGHT)          # far beyond the room's walls
     open_gate, _, _, _ = reckoned_evidence(tables, meas, ll_truth, outside, 0.0, 0.9)
     assert open_gate > 5.0
-    gated, _, _, silent = reckoned_evidence(tables, meas, ll_truth, outside, 4.0, 0.9,
-                                            min_echoes=2)
-    assert gated == pytest.approx(0.9 * 4.0) and not silent
+    gated, _, _, counted = reckoned_evidence(tables, meas, ll_truth, outside, 4.0, 0.9,
+                                             min_echoes=2)
+    assert gated == pytest.approx(0.9 * 4.0) and not counted
     inside = (truth[k] + np.array([2.0, 0.5, 0.0]), TIGHT)  # the map speaks there
     a, _, _, _ = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9)
     b, _, _, counted = reckoned_evidence(tables, meas, ll_truth, inside, 0.0, 0.9, min_echoes=2)
