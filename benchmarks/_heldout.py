@@ -7,7 +7,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
                      "points": [[x, y], ...], "description": "...",
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
                               | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"
-                              | "fresh14h" | "fresh14i" | "fresh14j"},
+                              | "fresh14h" | "fresh14i" | "fresh14j" | "fresh14k"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -26,8 +26,9 @@ new rooms, ``"fresh14h"`` after the filter's rules that a global start on a map 
 runs confirms only after 8 agreeing blocks and that a block counts as evidence for a jump only
 where at least 1.5 predicted echoes go unheard, before any measurement of them on new rooms,
 ``"fresh14i"`` at the start of session 31, before any of that session's filter changes and
-before any measurement on them, and ``"fresh14j"`` at the start of session 32, before any
-measurement on them (nothing was run on any of these before they were committed).
+before any measurement on them, ``"fresh14j"`` at the start of session 32, before any
+measurement on them, and ``"fresh14k"`` at the start of session 33, before any measurement on
+them (nothing was run on any of these before they were committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -48,7 +49,8 @@ from mapping.scene import Scene
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
-               "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i", "fresh14j")
+               "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i", "fresh14j",
+               "fresh14k")
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ FRESH14G = ("cloister", "mews")  # written after the jump-evidence rule: group "
 FRESH14H = ("refectory", "loft")  # written after the confirm and missed-echo rules: "fresh14h"
 FRESH14I = ("lounge", "arcade", "library")  # written at the start of session 31: "fresh14i"
 FRESH14J = ("rotunda", "foundry", "cellar")  # written at the start of session 32: "fresh14j"
+FRESH14K = ("parlour", "bakery", "boathouse")  # written at the start of session 33: "fresh14k"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -90,6 +91,11 @@ INTERIOR = {
     "foundry": [(0.0, 0.0), (10.0, 0.0), (10.0, 6.8), (0.0, 6.8)],
     "cellar": [(0.6, 0.8), (5.8, 0.0), (9.6, 1.8), (9.0, 5.6), (6.3, 6.6), (4.3, 5.4), (1.1, 6.8),
                (0.4, 6.2)],
+    "parlour": [(0.0, 0.0), (9.6, 0.0), (9.75, 6.2), (8.1, 6.2), (8.1, 7.4), (6.3, 7.4), (6.3, 6.2),
+                (3.3, 6.2), (3.3, 7.2), (1.5, 7.2), (1.5, 6.2), (0.0, 6.2)],
+    "bakery": [(0.0, 0.0), (8.0, 0.0), (8.0, 3.9), (8.25, 3.9), (8.25, -1.6), (11.65, -1.6),
+               (11.65, 6.0), (8.25, 6.0), (8.25, 5.4), (8.0, 5.4), (8.0, 6.0), (0.0, 6.0)],
+    "boathouse": [(0.5, 0.0), (8.6, 0.7), (9.8, 4.6), (6.8, 7.4), (1.6, 6.6)],
 }
 
 
@@ -128,7 +134,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14D) <= set(SCENES) and set(FRESH14E) <= set(SCENES)
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
-    assert set(FRESH14J) <= set(SCENES)
+    assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -141,7 +147,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14g" if spec.scene in FRESH14G
                     else "fresh14h" if spec.scene in FRESH14H
                     else "fresh14i" if spec.scene in FRESH14I
-                    else "fresh14j" if spec.scene in FRESH14J else "held-out")
+                    else "fresh14j" if spec.scene in FRESH14J
+                    else "fresh14k" if spec.scene in FRESH14K else "held-out")
         assert spec.group == expected
 
 
@@ -684,6 +691,172 @@ def test_cellar_has_no_right_angle_an_obtuse_reflex_corner_a_short_wall_and_mixe
     assert abs(_winding_deg("cellar-bastion", tip)) > 120.0
 
 
+def test_the_fresh14k_paths_are_8_to_10_m_long() -> None:
+    names = [n for scene in FRESH14K for n in heldout_path_names(scene)]
+    assert len(names) == 9 and all(heldout_path(n).group == "fresh14k" for n in names)
+    for name in names:
+        assert 8.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
+
+
+def _headings_apart_deg(name: str, other: str) -> float:
+    """Least angle between any heading of path ``name`` and any heading of path ``other``, deg."""
+    headings = []
+    for path in (name, other):
+        trajectory = heldout_path(path).trajectory()
+        headings.append(trajectory.heading_rad(np.linspace(0.0, trajectory.duration_s, 1000)))
+    return float(np.degrees(np.abs(wrap_angle(headings[0][:, None] - headings[1][None])).min()))
+
+
+def test_parlour_is_its_mirror_image_to_0p2_m_and_parlour_mirror_mirrors_the_curve() -> None:
+    parlour = heldout_scene("parlour")
+    walls = {w.name: w for w in parlour.walls}
+    assert all(w.reflection is None for w in parlour.walls)  # no material breaks the symmetry
+    outline, interior = _outline("parlour", 12)
+    lean = np.degrees(np.arctan2(0.15, 6.2))  # the east wall leans out 0.15 m over its 6.2 m
+    assert np.isclose(interior[1], 90.0 + lean) and np.isclose(interior[2], 90.0 - lean)
+    assert np.allclose(np.delete(interior, [1, 2]) % 180.0, 90.0)  # every other corner square
+    # two 1.8 m alcoves placed as mirror images about the south wall's middle, x = 4.8, of
+    # unequal depth: 1.0 m (west) and 1.2 m (east)
+    axis = (walls["south"].start[0] + walls["south"].end[0]) / 2.0
+    assert np.isclose(axis, 4.8)
+    for side, depth in (("west", 1.0), ("east", 1.2)):
+        back = walls[f"{side} alcove back"]
+        assert np.isclose(back.length_m, 1.8)
+        assert np.isclose(walls[f"{side} alcove east"].length_m, depth)
+        assert np.isclose(walls[f"{side} alcove west"].length_m, depth)
+        assert np.isclose(abs((back.start[0] + back.end[0]) / 2.0 - axis), 2.4)
+    # mirrored about x = 4.8 the room lies within 0.2 m of itself, and only just: six corners
+    # fall on corners, the two at the north ends of the side walls 0.15 m off (the lean), the
+    # four at the alcoves' backs 0.2 m off (the depths)
+
+    def mirror(xy: np.ndarray) -> np.ndarray:
+        return np.asarray(xy * [-1.0, 1.0] + [2.0 * axis, 0.0])
+
+    segments = parlour.segments()
+    on_walls = np.concatenate([np.linspace(a, b, 200) for a, b in segments])
+    assert np.isclose(distance_to_walls(mirror(on_walls), segments).max(), 0.2)
+    gap = np.linalg.norm(mirror(outline)[:, None] - outline[None], axis=2).min(axis=1)
+    assert np.allclose(np.sort(gap), [0.0] * 6 + [0.15] * 2 + [0.2] * 4)
+    # the mapped curve: the west half only; parlour-mirror: the east half only, the curve
+    # mirrored and driven the other way (from the mirror of its end, heading -theta where the
+    # curve heads theta, so turning the same way)
+    curve = _positions("parlour-curve")
+    assert curve[:, 0].max() < axis - 0.4
+    mirrored = _positions("parlour-mirror")
+    assert mirrored[:, 0].min() > axis + 0.4
+    assert np.abs(mirror(mirrored) - curve[::-1]).max() < 1e-6
+    trajectory = heldout_path("parlour-mirror").trajectory()
+    theta = trajectory.heading_rad(np.linspace(0.0, trajectory.duration_s, 1000))
+    curve_trajectory = heldout_path("parlour-curve").trajectory()
+    curve_theta = curve_trajectory.heading_rad(
+        np.linspace(0.0, curve_trajectory.duration_s, 1000))
+    assert np.abs(wrap_angle(theta + curve_theta[::-1])).max() < 1e-6
+    # parlour-line: across the room, all of it in the curve's sight, at least 70 deg from every
+    # heading of the curve
+    assert _seen(_positions("parlour-line", 300), curve, segments).all()
+    assert _headings_apart_deg("parlour-line", "parlour-curve") > 70.0
+
+
+def test_bakery_hides_its_store_beyond_a_1p5_m_doorway_from_the_mapped_curve() -> None:
+    bakery = heldout_scene("bakery")
+    walls = {w.name: w for w in bakery.walls}
+    _, interior = _outline("bakery", 12)
+    assert np.allclose(np.sort(interior), [90.0] * 8 + [270.0] * 4)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "store south": 0.7, "store east": 0.7}
+    # an 8.0 m x 6.0 m bakehouse, a 0.25 m dividing wall and a 3.4 m x 7.6 m store reaching
+    # 1.6 m further south
+    assert (walls["bakehouse south"].length_m, walls["bakehouse west"].length_m) == (8.0, 6.0)
+    assert np.allclose([walls["store south"].length_m, walls["store east"].length_m], [3.4, 7.6])
+    assert np.isclose(walls["store west"].start[0] - walls["dividing wall south"].start[0], 0.25)
+    assert np.isclose(walls["bakehouse south"].start[1] - walls["store south"].start[1], 1.6)
+    # the doorway: 1.5 m between two 0.25 m jambs, 0.6 m from the north wall; its middle is
+    # 0.75 m from every wall
+    south_jamb, north_jamb = walls["doorway south jamb"], walls["doorway north jamb"]
+    assert np.isclose(north_jamb.start[1] - south_jamb.start[1], 1.5)
+    assert np.isclose(south_jamb.length_m, 0.25) and np.isclose(north_jamb.length_m, 0.25)
+    assert np.isclose(walls["dividing wall north"].length_m, 0.6)
+    segments = bakery.segments()
+    door = np.array([[8.125, 4.65]])
+    assert np.isclose(distance_to_walls(door, segments)[0], 0.75)
+    # the mapped curve: the bakehouse's south part only, never in the store
+    curve = _positions("bakery-curve")
+    assert curve[:, 0].max() < 8.0 - 0.5 and curve[:, 1].max() < 3.65
+    # the store's centre line south of y = 3.95 (to 0.5 m from its south wall): never in sight
+    # of the mapped curve
+    centre_line = np.column_stack([np.full(101, 9.95), np.linspace(-1.1, 3.95, 101)])
+    assert not _seen(centre_line, curve, segments).any()
+    # bakery-store: through the doorway's middle into the store; its last 4.3 m never in sight
+    # of the mapped curve; control: without the dividing wall (its faces, jambs and the store's
+    # west faces) all of it is in sight
+    drive = heldout_path("bakery-store").trajectory()
+    driven = _positions("bakery-store")
+    in_door = (driven[:, 0] > 8.0) & (driven[:, 0] < 8.25)
+    assert in_door.any() and np.allclose(driven[in_door, 1], 4.65)
+    assert driven[-1, 0] > 8.25 + 1.0 and driven[-1, 1] < 0.0  # south of the bakehouse
+    start = drive.duration_s * (1.0 - 4.3 / drive.length_m)
+    hidden = drive.position(np.linspace(start, drive.duration_s, 200))
+    assert not _seen(hidden, curve, segments).any()
+    names = list(walls)
+    kept = np.array([segments[k] for k, n in enumerate(names)
+                     if not n.startswith(("dividing", "doorway", "store west"))])
+    assert len(kept) == len(names) - 6
+    assert _seen(driven, curve, kept).all()
+    assert _seen(driven[:1], curve, segments).all()  # starts in sight
+    # bakery-line: a V over the mapped part, all of it in the curve's sight, at least 60 deg
+    # from every heading of the curve
+    line = _positions("bakery-line", 300)
+    assert line[:, 0].max() < 8.0 and _seen(line, curve, segments).all()
+    assert _headings_apart_deg("bakery-line", "bakery-curve") > 60.0
+
+
+def test_boathouse_is_open_on_one_side_has_a_round_column_no_right_angle_and_mixed_walls() -> None:
+    boathouse = heldout_scene("boathouse")
+    walls = {w.name: w for w in boathouse.walls}
+    names = list(walls)
+    outline, interior = _outline("boathouse", 5)  # closed across the open side
+    assert np.all(np.abs(interior - 90.0) > 10.0) and np.all(interior < 180.0)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east": 0.7, "north-east": 0.9, "north": 0.5}
+    segments = boathouse.segments()
+    is_outer = np.array([not n.startswith("column") for n in names])
+    assert names[:4] == ["south", "east", "north-east", "north"] and is_outer.sum() == 4
+    # the open side: from the north wall's free end to the south wall's free end, no wall; every
+    # wall lies on the room's side of it (nothing beyond); its middle 2.86 m from every wall
+    opening = np.array([walls["north"].end, walls["south"].start], dtype=np.float64)
+    assert np.allclose(opening, outline[[-1, 0]])
+    assert np.isclose(np.linalg.norm(opening[1] - opening[0]), 6.69, atol=0.005)
+    along = (opening[1] - opening[0]) / np.linalg.norm(opening[1] - opening[0])
+    inward = np.array([-along[1], along[0]])
+    assert np.all((segments.reshape(-1, 2) - opening[0]) @ inward > -1e-9)
+    middle = opening.mean(axis=0)
+    assert abs(distance_to_walls(middle[None], segments)[0] - 2.86) < 0.005
+    # the column: a regular 16-gon 0.9 m across its corners, centred at (4.2, 4.3), free-standing
+    column = segments[~is_outer]
+    angle = np.radians(22.5 * np.arange(16))
+    ideal = np.array([4.2, 4.3]) + 0.45 * np.column_stack([np.cos(angle), np.sin(angle)])
+    assert np.allclose(column[:, 0], ideal, atol=1e-4)
+    assert np.allclose(column[:, 1], np.roll(column[:, 0], -1, axis=0))  # closed
+    assert distance_to_walls(column[:, 0], segments[is_outer]).min() > 2.2
+    # the mapped curve: the south and east parts, away from the open side and the column;
+    # boathouse-open goes where it never does: along the north wall, half-way round the column
+    # and down the open side
+    opening_segment = opening[None]
+    curve = _positions("boathouse-curve")
+    assert distance_to_walls(curve, opening_segment).min() > 1.0
+    assert curve[:, 1].max() < 4.3
+    assert np.linalg.norm(curve - ideal.mean(axis=0), axis=1).min() > 3.0
+    open_side = _positions("boathouse-open")
+    assert distance_to_walls(open_side, opening_segment).min() < 0.7
+    assert open_side[:, 1].max() > curve[:, 1].max() + 1.5
+    assert abs(_winding_deg("boathouse-open", ideal.mean(axis=0))) > 180.0
+    # boathouse-line: across the mapped part past the column, at least 100 deg from every
+    # heading of the curve
+    line = _positions("boathouse-line", 300)
+    assert np.linalg.norm(line - ideal.mean(axis=0), axis=1).min() < 1.5
+    assert _headings_apart_deg("boathouse-line", "boathouse-curve") > 100.0
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -706,7 +879,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14g": FRESH14B_CLEARANCE_M,
                  "fresh14h": FRESH14B_CLEARANCE_M,
                  "fresh14i": FRESH14B_CLEARANCE_M,
-                 "fresh14j": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14j": FRESH14B_CLEARANCE_M,
+                 "fresh14k": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
