@@ -569,6 +569,7 @@ class ParticleFilter:
                                                 gate_rad)
         rivals = np.zeros((0, 3))
         alive = rivals
+        doubts = 0
         at_estimate: Explanation | None = None
         twin_gap = self.twin_gap
         held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
@@ -588,6 +589,9 @@ class ParticleFilter:
             held = _rivals.update(self.tables, meas, estimate.pose, held, cfg.rival_params,
                                   self.rng, float(at_estimate.log_likelihood[0]))
             found = _rivals.active(held, anchored, cfg.rival_margin_nats, cfg.twin_margin_nats)
+            doubts = _rivals.active(held, anchored, min(cfg.rival_doubt_nats,
+                                                        cfg.rival_margin_nats),
+                                    cfg.twin_margin_nats).shape[0]
             rivals = np.vstack([rivals, found])
             # data-driven rivals get particles only when the filter may re-localize
             alive = rivals if cfg.relocalize else rivals[: rivals.shape[0] - found.shape[0]]
@@ -636,6 +640,10 @@ class ParticleFilter:
                 recovery = -1
             elif status == "converged":
                 status = "uncertain"
+        if status == "converged" and doubts:
+            # a place elsewhere explains the recent blocks better, by less than a kidnap
+            # needs: the estimate stands, the status says it is in doubt
+            status = "uncertain"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         particles_pose = estimate.pose
         if (cfg.report_reckoned and far and reckoned is not None and status != "converged"

@@ -13,6 +13,7 @@ functions.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from typing import Any
@@ -25,8 +26,22 @@ from numpy.typing import NDArray
 
 from localization.motion import predict_mean
 from localization.particle_filter import FilterConfig, ParticleFilter, Rivals
-from localization.particle_filter._rivals import active, admit, advance, far_from, prune, update
-from localization.sensor import SensorConfig, SensorTables, build_tables, prepare_measurement
+from localization.particle_filter._rivals import (
+    active,
+    admit,
+    advance,
+    far_from,
+    prune,
+    refine_best,
+    update,
+)
+from localization.sensor import (
+    SensorConfig,
+    SensorTables,
+    build_tables,
+    explanation,
+    prepare_measurement,
+)
 from mapping.forward import WallSet, predicted_heatmap
 from mapping.heatmap import HeatMap
 from mapping.signal import SonarConfig
@@ -223,3 +238,56 @@ def test_rival_settings_are_validated(field: str, value: float) -> None:
     kwargs: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
         FilterConfig(**kwargs)
+
+
+def test_a_rival_better_by_less_than_the_margin_puts_the_status_in_doubt(
+        tables: SensorTables) -> None:
+    """``rival_doubt_nats``: while anchored, a rival that explained the recent blocks better
+    by more than rival_doubt_nats but less than rival_margin_nats keeps the status from
+    ``converged`` and changes nothing else (same seed: the same estimate). The rival here is
+    a pose 2 m further along the corridor's middle, where the blocks tie, handed an evidence
+    gap of -1 nat (after one block's forgetting, -0.9): a doubt, not a kidnap. The control:
+    with the doubt at the margin (the rule off) the same block is ``converged``."""
+    truth = trajectory(np.array([5.5, 0.9, 0.0]), [(SPEED, 0.0)] * 7, DT)
+    hms = _blocks(truth)
+    pf = ParticleFilter(tables, FilterConfig(), np.random.default_rng(0), pose=truth[0],
+                        cov=TIGHT)
+    _drive(pf, hms[:6])
+    assert pf.anchored
+    pf.rivals = Rivals(np.array([truth[5] + [2.0, 0.0, 0.0]]), np.array([-1.0]))
+    out = {}
+    for doubt in (0.5, FilterConfig().rival_margin_nats):
+        twin = copy.deepcopy(pf)
+        twin.config = dataclasses.replace(twin.config, rival_doubt_nats=doubt)
+        out[doubt] = twin.step(hms[6], SPEED, 0.0, DT)
+    on, off = out[0.5], out[FilterConfig().rival_margin_nats]
+    assert off.status == "converged" and on.status == "uncertain"
+    np.testing.assert_allclose(on.pose, off.pose)
+    np.testing.assert_allclose(on.cov, off.cov)
+    assert np.hypot(*(on.pose[:2] - truth[6, :2])) < 0.05
+
+
+def test_refine_best_moves_the_best_far_proposals_onto_their_peak(
+        tables: SensorTables, kidnap: tuple[FloatArray, list]) -> None:
+    """``refine_best``: of proposals scored on a mid-corridor block, the best ``top`` beyond
+    the separation from the held poses are moved to their refined poses and scores (a pose
+    3 cm off the corridor's middle line and 2 deg off its heading comes back within 1 cm and
+    1 deg and scores higher); a proposal near a held pose, and those below the top, are
+    returned as given."""
+    truth, hms = kidnap
+    m = prepare_measurement(hms[BEFORE + 2], tables.config)
+    t = truth[BEFORE + 2]
+    off = t + [0.0, 0.03, math.radians(2.0)]
+    near_held = truth[BEFORE - 1] + [0.1, 0.02, 0.0]
+    worse = t + [0.0, 0.3, math.radians(20.0)]
+    cand = np.array([off, near_held, worse])
+    ll = explanation(tables, m, cand).log_likelihood
+    held = truth[BEFORE - 1][None, :]
+    out, out_ll = refine_best(tables, m, cand, ll, held, 1, 0.5, math.radians(30.0))
+    assert abs(out[0, 1] - t[1]) < 0.01 and abs(out[0, 2] - t[2]) < math.radians(1.0)
+    assert out_ll[0] > ll[0]
+    np.testing.assert_array_equal(out[1:], cand[1:])
+    np.testing.assert_array_equal(out_ll[1:], ll[1:])
+    # top 0 or nothing far: unchanged
+    same, same_ll = refine_best(tables, m, cand[1:2], ll[1:2], held, 4, 0.5, math.radians(30.0))
+    np.testing.assert_array_equal(same, cand[1:2])
