@@ -222,7 +222,8 @@ def _fit_summary(fitted: FittedWalls) -> dict[str, Any]:
     return {"walls": fitted.n, "candidates": fitted.n_candidates,
             "ambiguous": int(fitted.ambiguous.sum()),
             "explained_share": round(fitted.explained_share, 4),
-            "peaks_per_wall": fitted.n_peaks.tolist(), "warning": fitted.warning}
+            "peaks_per_wall": fitted.n_peaks.tolist(), "warning": fitted.warning,
+            "end_sigma_m": np.round(fitted.end_sigma, 4).tolist()}
 
 
 def _add_aligned(G: FloatArray, extent: GridExtent, part: FloatArray, at: GridExtent) -> None:

@@ -153,6 +153,24 @@ class WallMap:
         return int(self.walls_m.shape[0])
 
     @property
+    def wall_end_sigma(self) -> FloatArray:
+        """1-sigma of each wall end's position along the wall, m, shape (n, 2) (ends
+        ``a = walls_m[:, :2]``, ``b = walls_m[:, 2:]``): 0 at a corner, about half the
+        spacing of the wall's specular points where the runs looked past the end and heard
+        no more wall, large where they never looked past it (the wall may go on). The wall
+        fit records it in ``provenance["fit"]["end_sigma_m"]``
+        (:func:`mapping.walls.fit_walls`); NaN where the map does not say (older maps, maps
+        made from geometry)."""
+        es = self.provenance.get("fit", {}).get("end_sigma_m") if isinstance(
+            self.provenance.get("fit"), dict) else None
+        out = np.full((self.n_walls, 2), np.nan)
+        if es is not None:
+            a = np.asarray(es, dtype=np.float64)
+            if a.shape == out.shape and np.all(~np.isfinite(a) | (a >= 0)):
+                out = a
+        return out
+
+    @property
     def shape(self) -> tuple[int, int]:
         """(ny, nx)."""
         return (int(self.G.shape[0]), int(self.G.shape[1]))

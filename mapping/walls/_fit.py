@@ -81,6 +81,13 @@ class WallFitParams:
         the forward model predicts it above the detection level is dropped.
     corner_reach_m : float
         Farthest a wall end is run on to meet another wall at a corner whose echo is heard.
+    open_end_sigma_m : float
+        Endpoint sigma of a free wall end the runs never looked past: a continuation of the
+        wall ``open_probe_m`` long beyond it would have given a first-order echo in fewer
+        than ``min_blocks`` blocks (:func:`_end_sigmas`), so the end is where the observed
+        stretch stops, not where the wall does.
+    open_probe_m : float
+        Length of that continuation.
     straight_tol_m : float
         If every pose that heard a wall lies within this of one straight line, the wall's side
         cannot be told: the mirror line is kept too and both are flagged ambiguous.
@@ -103,6 +110,8 @@ class WallFitParams:
     clearance_m: float = 0.15
     heard_share: float = 0.5
     corner_reach_m: float = 6.0
+    open_end_sigma_m: float = 1.0
+    open_probe_m: float = 1.0
 
     def __post_init__(self) -> None:
         checks = (
@@ -122,6 +131,8 @@ class WallFitParams:
             ("clearance_m", 0 <= self.clearance_m <= 2),
             ("heard_share", 0 <= self.heard_share <= 1),
             ("corner_reach_m", 0 <= self.corner_reach_m <= 20),
+            ("open_end_sigma_m", 0 <= self.open_end_sigma_m <= 20),
+            ("open_probe_m", 0 < self.open_probe_m <= 20),
         )
         check_fields(self, checks)
 
@@ -263,6 +274,7 @@ class FittedWalls:
     gain: FloatArray
     explained_share: float
     n_candidates: int
+    end_sigma: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def n(self) -> int:
@@ -795,7 +807,40 @@ def _finish(kept: list[_Wall], obs: PeakObservations,
     ex = explained(obs, final, config, params.max_order, params.range_tol_m, params.cos_tol)
     return FittedWalls(
         walls_m=walls, strength=np.array([w.strength for w in kept]), sigma=sigma,
+        end_sigma=_end_sigmas(kept, sigma[:, 2], obs, config, params),
         ambiguous=pair >= 0, pair=pair,
         n_peaks=np.array([w.cand.members.size for w in kept], dtype=np.int64),
         gain=np.array([w.cand.gain for w in kept]), explained_share=_share(obs, ex),
         n_candidates=n_candidates)
+
+
+def _end_sigmas(kept: list[_Wall], observed_sigma: FloatArray, obs: PeakObservations,
+                config: SonarConfig, params: WallFitParams) -> FloatArray:
+    """Endpoint sigma of each wall end (n, 2): 0 for an end joined at a corner;
+    ``observed_sigma`` (half the spacing of the wall's specular points) where the runs looked
+    past the end - a continuation ``open_probe_m`` long would have given a first-order echo
+    in at least ``min_blocks`` blocks (:func:`heard_blocks`, occlusion by the other walls
+    included), so the wall stops there; ``open_end_sigma_m`` where they did not: the runs
+    heard the wall up to where their specular points stopped, and what lies beyond is
+    unknown. (Measured on the held-out foundry: the mapped curve stayed south of y = 1.8 m
+    near the west wall, and the map's west wall ended at y = 1.77 m of the hall's 6.8 m.)"""
+    out = np.zeros((len(kept), 2))
+    for i, w in enumerate(kept):
+        u = w.b - w.a
+        length = float(np.hypot(*u))
+        if length <= 0.0:
+            continue
+        u = u / length
+        for end in (0, 1):
+            if w.joined[end]:
+                continue
+            tip = w.a if end == 0 else w.b
+            far = tip + (-1.0 if end == 0 else 1.0) * params.open_probe_m * u
+            piece = _Wall(w.cand, tip.copy(), far, -1, w.strength)
+            ws = _wallset([*kept, piece], pad_m=0.0)
+            predicted, _ = heard_blocks(obs, ws, len(kept), config, params.range_tol_m,
+                                        2 * params.cos_tol, params.peaks.snr,
+                                        params.peaks.min_relative, params.peaks.max_range_m)
+            out[i, end] = (observed_sigma[i] if predicted >= params.min_blocks
+                           else params.open_end_sigma_m)
+    return out

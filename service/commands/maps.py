@@ -127,6 +127,11 @@ def _cmd_build_map(args: argparse.Namespace) -> int:
     fit = prov.get("fit", {})
     if fit:
         print(f"walls explain {fit['explained_share']:.0%} of the echo energy heard")
+        es = wm.wall_end_sigma
+        n_open = int(np.sum(es >= params.walls.open_end_sigma_m)) if np.isfinite(es).any() else 0
+        if n_open:
+            print(f"{n_open} wall end(s) open: the runs never looked past them, the wall may "
+                  "go on (localization runs them on)")
         if fit.get("warning"):
             print(f"warning: {fit['warning']}", file=sys.stderr)
     if args.png:

@@ -488,6 +488,44 @@ def test_soft_ends_run_free_ends_on_and_weigh_bounces_by_the_end_sigma() -> None
     np.testing.assert_allclose(w, [0.5, 0.97725, 0.15866, 0.84134], atol=1e-4)
 
 
+def test_an_open_end_runs_on_by_its_own_sigma_and_stops_at_the_next_wall() -> None:
+    """Per-end sigmas (``WallMap.wall_end_sigma``): a wall along y = 0 whose east end (4, 0)
+    the runs never looked past (sigma 1 m) runs on 2.5 m, to (6.5, 0), its observed west end
+    (sigma 2 cm) by 5 cm; a wall along x = 0 whose open north end (0, 1) points at a
+    crossing wall at y = 2 stops there (1 m of run-on, not 2.5). A NaN end falls back to
+    the wall's endpoint sigma. The weights of a bounce 1 m beyond the open end: Phi(-1)."""
+    walls = WallSet.from_array(np.array([[-1.0, 0.0, 4.0, 0.0], [0.0, -0.5, 0.0, 1.0],
+                                         [-2.0, 2.0, 2.0, 2.0]]))
+    wsig = np.array([[0.0, 0.0, 0.03], [0.0, 0.0, 0.03], [0.0, 0.0, 0.03]])
+    es = np.array([[0.02, 1.0], [np.nan, 1.0], [0.0, 0.0]])
+    run_on, sig = soft_end_walls(walls, wsig, end_sigma=es)
+    np.testing.assert_allclose(sig, [[0.02, 1.0], [0.03, 1.0], [0.0, 0.0]])
+    np.testing.assert_allclose(run_on.segments_m, [[[-1.05, 0.0], [6.5, 0.0]],
+                                                   [[0.0, -0.575], [0.0, 2.0]],
+                                                   [[-2.0, 2.0], [2.0, 2.0]]])
+    w = end_weights(walls, sig, np.array([[0, -1]]),
+                    np.array([[[5.0, 0.0], [np.nan, np.nan]]]))
+    np.testing.assert_allclose(w, [0.15866], atol=1e-4)
+    # without per-end sigmas, the wall's own endpoint sigma at both ends, as before
+    same, _ = soft_end_walls(walls, wsig)
+    np.testing.assert_allclose(same.segments_m[0], [[-1.075, 0.0], [4.075, 0.0]])
+
+
+def test_tables_read_the_wall_end_sigmas_of_a_built_map() -> None:
+    """``build_tables`` takes ``WallMap.wall_end_sigma`` (the fit's record in provenance);
+    a map that does not record it (geometry, older maps) gives None."""
+    wm = wallmap_from_walls(np.array([[0.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 3.0]]))
+    assert build_tables(wm, SensorConfig(model="echo")).end_sigma is None
+    built = dataclasses.replace(wm, provenance={"runs": [{"path": "a.npz", "sha256": "0"}],
+                                                "fit": {"end_sigma_m": [[0.0, 1.0],
+                                                                        [0.0, 0.05]]}})
+    es = build_tables(built, SensorConfig(model="echo")).end_sigma
+    assert es is not None
+    np.testing.assert_allclose(es, np.array([[0.0, 1.0], [0.0, 0.05]]))
+    bad = dataclasses.replace(built, provenance={"fit": {"end_sigma_m": [[0.0, -1.0]]}})
+    assert np.isnan(bad.wall_end_sigma).all()
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 6), st.integers(1, 5), st.integers(1, 7), st.integers(1, 3),
        st.integers(0, 2**32 - 1))

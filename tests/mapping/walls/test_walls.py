@@ -215,3 +215,45 @@ def test_a_corner_join_does_not_seal_an_unheard_doorway() -> None:
     doorway = [np.array([x, 4.0]) for x in np.linspace(1.7, 3.1, 8)]
     assert min(nearest_m(p) for p in doorway) > 0.2
     assert nearest_m(np.array([5.5, 4.0])) < 0.05
+
+
+def _end_sigma_at(wm, p: tuple[float, float]) -> float:
+    """The recorded sigma of the fitted wall end nearest ``p`` (asserting one is within 5 cm)."""
+    ends = wm.walls_m.reshape(-1, 2, 2).reshape(-1, 2)
+    d = np.hypot(*(ends - np.asarray(p)).T)
+    assert d.min() < 0.05, (p, d.min())
+    return float(wm.wall_end_sigma.reshape(-1)[int(np.argmin(d))])
+
+
+def test_paper_scene_end_the_path_looked_past_is_observed(paper_map) -> None:
+    """Wall 3 ends in the open at x = 2.3 m and the path drove past that end: the wall's
+    end there is observed (a few cm, not the open sigma); corners are 0."""
+    _, wm = paper_map
+    es = wm.wall_end_sigma
+    assert es.shape == (wm.n_walls, 2) and np.all(np.isfinite(es)) and np.all(es >= 0)
+    wall3 = [i for i, w in enumerate(wm.walls_m)
+             if abs(w[1] - 1.36) < 0.05 and abs(w[3] - 1.36) < 0.05]
+    w = wm.walls_m[wall3[0]]
+    end = (w[0], w[1]) if w[0] < w[2] else (w[2], w[3])
+    assert 0 < _end_sigma_at(wm, end) < 0.1
+    assert np.sum(es == 0) >= 4                           # the room's corners
+
+
+def test_wall_ends_the_mapped_run_never_looked_past_are_open() -> None:
+    """Ground truth: the fresh14j foundry, a 10 m x 6.8 m hall with a free-standing partition
+    at y = 4.6 (x 2.4-8.6). The mapped curve stays south of the partition, never north of
+    y = 1.8 m near the west wall nor east of x = 7.4 m: its map's west wall stops at
+    y = 1.77 m, the east wall at 3.76 m and the partition at x = 7.39 m, all three walls going
+    on in the room. Those ends are open (``open_end_sigma_m``); the partition's west end,
+    which the curve drove past, is observed (it is the partition's true end, x = 2.4 m)."""
+    from benchmarks._heldout import heldout_path, heldout_scene
+
+    scene = heldout_scene("foundry")
+    traj = heldout_path("foundry-curve").trajectory(0.1)
+    wm = _walls_map(_simulate(scene, traj, int(traj.duration_s / CONFIG.block_s)))
+    open_m = WallFitParams().open_end_sigma_m
+    assert _end_sigma_at(wm, (0.0, 1.77)) == open_m
+    assert _end_sigma_at(wm, (10.0, 3.76)) == open_m
+    assert _end_sigma_at(wm, (7.39, 4.6)) == open_m
+    assert 0 < _end_sigma_at(wm, (2.43, 4.6)) < 0.1
+    assert _end_sigma_at(wm, (0.0, 0.0)) == 0.0           # a corner
