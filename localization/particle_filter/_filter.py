@@ -586,7 +586,11 @@ class ParticleFilter:
                                          self.twin_gap, cfg.twin_memory)
                 rivals = twins[twin_gap < cfg.twin_margin_nats]
             # poses elsewhere that explain the blocks as well (better, while anchored)
-            held = _rivals.update(self.tables, meas, estimate.pose, held, cfg.rival_params,
+            # two-peak proposals while anchored only: they find ties, which an unanchored
+            # filter counts against its estimate (global starts slowed down)
+            params = (cfg.rival_params if anchored
+                      else dataclasses.replace(cfg.rival_params, pair_share=0.0))
+            held = _rivals.update(self.tables, meas, estimate.pose, held, params,
                                   self.rng, float(at_estimate.log_likelihood[0]))
             found = _rivals.active(held, anchored, cfg.rival_margin_nats, cfg.twin_margin_nats)
             doubts = _rivals.active(held, anchored, min(cfg.rival_doubt_nats,

@@ -83,6 +83,9 @@ class RivalParams:
         are refined (:func:`refine_poses`) before they are compared with the estimate: a
         proposal is a few cm and degrees off the place it stands for, and the estimate it
         is compared with is the filter's mode, itself on its peak (0: compared as drawn).
+    pair_share : float
+        Share of the proposals that explain two peaks at once
+        (:func:`~localization.sensor.pair_proposals`).
     """
 
     proposals: int
@@ -92,6 +95,7 @@ class RivalParams:
     memory: float
     drop_nats: float
     refine_top: int = 0
+    pair_share: float = 0.0
 
 
 def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArray,
@@ -211,7 +215,8 @@ def update(tables: SensorTables, measurement: Measurement, estimate: FloatArray,
         return rivals
     ll_est = (float(explanation(tables, measurement, estimate[None, :]).log_likelihood[0])
               if ll_estimate is None else float(ll_estimate))
-    cand = echo_proposals(tables, measurement, params.proposals, rng)
+    cand = echo_proposals(tables, measurement, params.proposals, rng,
+                          pair_share=params.pair_share)
     ll_cand = explanation(tables, measurement, cand).log_likelihood
     held = np.vstack([estimate[None, :], rivals.poses])
     if params.refine_top > 0 and cand.shape[0]:

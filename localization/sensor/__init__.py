@@ -40,6 +40,7 @@ from localization.sensor._echo import (
     echo_proposals,
     explanation,
     map_range_sigma,
+    pair_proposals,
     predicted_echoes,
 )
 from localization.sensor._measurement import (
@@ -75,6 +76,7 @@ __all__ = [
     "Explanation",
     "cos_sigma",
     "echo_proposals",
+    "pair_proposals",
     "end_weights",
     "explanation",
     "map_range_sigma",

@@ -233,7 +233,8 @@ def test_rivals_survive_a_checkpoint(tables: SensorTables,
 @pytest.mark.parametrize(("field", "value"), [
     ("rival_proposals", -1), ("max_rivals", 0), ("rival_separation_m", 0.0),
     ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0), ("rival_margin_nats", -1.0),
-    ("rival_memory", 1.0)])
+    ("rival_memory", 1.0), ("rival_doubt_nats", -0.5), ("rival_refine_top", -1),
+    ("rival_refine_top", 2.5), ("rival_pair_share", 1.5)])
 def test_rival_settings_are_validated(field: str, value: float) -> None:
     kwargs: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
