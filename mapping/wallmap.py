@@ -161,8 +161,8 @@ class WallMap:
         fit records it in ``provenance["fit"]["end_sigma_m"]``
         (:func:`mapping.walls.fit_walls`); NaN where the map does not say (older maps, maps
         made from geometry)."""
-        es = self.provenance.get("fit", {}).get("end_sigma_m") if isinstance(
-            self.provenance.get("fit"), dict) else None
+        fit = self.provenance.get("fit")
+        es = fit.get("end_sigma_m") if isinstance(fit, dict) else None
         out = np.full((self.n_walls, 2), np.nan)
         if es is not None:
             a = np.asarray(es, dtype=np.float64)

@@ -210,6 +210,19 @@ def echo_proposals(tables: SensorTables, measurement: Measurement, n: int,
     return _single_proposals(tables, measurement, n, rng, strongest)
 
 
+def _wall_frames(tables: SensorTables) -> tuple[FloatArray, FloatArray, FloatArray,
+                                                FloatArray, FloatArray]:
+    """Start and end points, length, unit direction and unit normal (left of the direction)
+    of each map wall of non-zero length: (k, 2), (k, 2), (k,), (k, 2), (k, 2)."""
+    seg = tables.walls.segments_m
+    a, b = seg[:, 0], seg[:, 1]
+    length = np.hypot(*(b - a).T)
+    ok = length > 1e-6
+    a, b, length = a[ok], b[ok], length[ok]
+    u = (b - a) / length[:, None]
+    return a, b, length, u, np.column_stack([-u[:, 1], u[:, 0]])
+
+
 def pair_proposals(tables: SensorTables, measurement: Measurement, n: int,
                    rng: np.random.Generator, strongest: int = 4,
                    margin_m: float = 0.5, draws: int = 8) -> FloatArray:
@@ -233,15 +246,9 @@ def pair_proposals(tables: SensorTables, measurement: Measurement, n: int,
     if n <= 0 or peaks is None or peaks.r.shape[0] < 2 or tables.walls.n < 2:
         return np.zeros((0, 3))
     want, n = n, draws * n
-    seg = tables.walls.segments_m
-    a, b = seg[:, 0], seg[:, 1]
-    length = np.hypot(*(b - a).T)
-    ok = length > 1e-6
-    if ok.sum() < 2:
+    a, _, length, u, normal = _wall_frames(tables)
+    if length.size < 2:
         return np.zeros((0, 3))
-    a, b, length = a[ok], b[ok], length[ok]
-    u = (b - a) / length[:, None]
-    normal = np.column_stack([-u[:, 1], u[:, 0]])
     k_peaks = min(strongest, peaks.r.shape[0])
     j1 = rng.integers(0, k_peaks, size=n)
     j2 = (j1 + rng.integers(1, k_peaks, size=n)) % k_peaks        # another peak
@@ -287,15 +294,9 @@ def _single_proposals(tables: SensorTables, measurement: Measurement, n: int,
     peaks = measurement.peaks
     if n == 0 or peaks is None or peaks.r.shape[0] == 0 or tables.walls.n == 0:
         return out
-    seg = tables.walls.segments_m
-    a, b = seg[:, 0], seg[:, 1]
-    length = np.hypot(*(b - a).T)
-    ok = length > 1e-6
-    if not ok.any():
+    a, b, length, u, normal = _wall_frames(tables)
+    if length.size == 0:
         return out
-    a, b, length = a[ok], b[ok], length[ok]
-    u = (b - a) / length[:, None]
-    normal = np.column_stack([-u[:, 1], u[:, 0]])
     j = rng.integers(0, min(strongest, peaks.r.shape[0]), size=n)
     w = rng.choice(length.size, size=n, p=length / length.sum())
     t = rng.random(n)[:, None]
