@@ -34,6 +34,7 @@ FRESH14H = ("refectory", "loft")  # written after the confirm and missed-echo ru
 FRESH14I = ("lounge", "arcade", "library")  # written at the start of session 31: "fresh14i"
 FRESH14J = ("rotunda", "foundry", "cellar")  # written at the start of session 32: "fresh14j"
 FRESH14K = ("parlour", "bakery", "boathouse")  # written at the start of session 33: "fresh14k"
+FRESH14L = ("pantry", "arcadia", "scullery")  # written at the start of session 34: "fresh14l"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -96,6 +97,9 @@ INTERIOR = {
     "bakery": [(0.0, 0.0), (8.0, 0.0), (8.0, 3.9), (8.25, 3.9), (8.25, -1.6), (11.65, -1.6),
                (11.65, 6.0), (8.25, 6.0), (8.25, 5.4), (8.0, 5.4), (8.0, 6.0), (0.0, 6.0)],
     "boathouse": [(0.5, 0.0), (8.6, 0.7), (9.8, 4.6), (6.8, 7.4), (1.6, 6.6)],
+    "pantry": [(0.0, 0.0), (6.0, 0.0), (6.2, 6.3), (0.0, 6.3)],
+    "arcadia": [(0.0, 0.0), (12.0, 0.0), (12.0, 4.5), (0.0, 4.5)],
+    "scullery": [(0.0, 1.4), (3.6, 0.0), (7.8, 0.6), (8.6, 4.2), (5.4, 7.0), (0.8, 6.4)],
 }
 
 
@@ -135,6 +139,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
+    assert set(FRESH14L) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -148,7 +153,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14h" if spec.scene in FRESH14H
                     else "fresh14i" if spec.scene in FRESH14I
                     else "fresh14j" if spec.scene in FRESH14J
-                    else "fresh14k" if spec.scene in FRESH14K else "held-out")
+                    else "fresh14k" if spec.scene in FRESH14K
+                    else "fresh14l" if spec.scene in FRESH14L else "held-out")
         assert spec.group == expected
 
 
@@ -857,6 +863,182 @@ def test_boathouse_is_open_on_one_side_has_a_round_column_no_right_angle_and_mix
     assert _headings_apart_deg("boathouse-line", "boathouse-curve") > 100.0
 
 
+def test_the_fresh14l_paths_are_7_to_10_m_long() -> None:
+    names = [n for scene in FRESH14L for n in heldout_path_names(scene)]
+    assert len(names) == 9 and all(heldout_path(n).group == "fresh14l" for n in names)
+    for name in names:
+        assert 7.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
+
+
+def _hidden_length_m(name: str, seen_from: np.ndarray, walls: np.ndarray) -> float:
+    """Length (m) of the path ``name`` out of sight of every position ``seen_from``."""
+    trajectory = heldout_path(name).trajectory()
+    hidden = ~_seen(_positions(name), seen_from, walls)
+    return float(trajectory.length_m * hidden.mean())
+
+
+def test_pantry_is_nearly_its_own_quarter_turn_but_for_a_free_standing_shelf() -> None:
+    pantry = heldout_scene("pantry")
+    walls = {w.name: w for w in pantry.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north": 0.6}                              # curtains
+    outline, interior = _outline("pantry", 4)
+    lean = np.degrees(np.arctan2(0.2, 6.3))       # the east wall leans out 0.2 m over 6.3 m
+    assert np.isclose(interior[1], 90.0 + lean) and np.isclose(interior[2], 90.0 - lean)
+    assert np.allclose(interior[[0, 3]], 90.0)
+    assert (walls["south"].length_m, walls["west"].length_m) == (6.0, 6.3)
+    segments = pantry.segments()
+    is_outer = np.array([not n.startswith("shelf") for n in names])
+    outer = segments[is_outer]
+    assert is_outer.sum() == 4
+    # turned a quarter turn either way about its middle the outer walls lie within 0.2 m of
+    # themselves (half a turn: 0.1 m), and no closer
+    centre = outline.mean(axis=0)
+    assert np.allclose(centre, (3.05, 3.15))
+    on_walls = np.concatenate([np.linspace(a, b, 200) for a, b in outer])
+    for quarters, gap in ((1, 0.2), (2, 0.1), (3, 0.2)):
+        a = np.radians(90.0 * quarters)
+        turn = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        moved = distance_to_walls((on_walls - centre) @ turn.T + centre, outer).max()
+        assert gap - 0.01 < moved <= gap + 1e-9, quarters
+    # the shelving: a closed rigid 0.6 m x 2.0 m block, free-standing, off the middle; turned a
+    # quarter turn it lands 0.8 m from where it stands
+    shelf = segments[~is_outer]
+    assert len(shelf) == 4 and np.allclose(shelf[:, 1], np.roll(shelf[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(shelf[:, 1] - shelf[:, 0], axis=1), [0.6, 2.0, 0.6, 2.0])
+    assert all(walls[n].reflection is None for n in names if n.startswith("shelf"))
+    corners = shelf[:, 0]
+    assert np.isclose(distance_to_walls(corners, outer).min(), 1.2)  # free-standing
+    assert np.linalg.norm(corners.mean(axis=0) - centre) > 1.6
+    quarter = np.array([[0.0, -1.0], [1.0, 0.0]])
+    assert np.isclose(distance_to_walls((corners - centre) @ quarter.T + centre, shelf).min(), 0.8)
+    # the mapped curve: the east part only; the strip between the shelving and the west wall,
+    # x = 0.6, y 3.4-4.2, is out of its sight (control: without the shelving it is in sight);
+    # pantry-corner drives down the strip, more than 1 m of it out of the curve's sight
+    curve = _positions("pantry-curve")
+    assert curve[:, 0].min() > 3.1
+    strip = np.column_stack([np.full(17, 0.6), np.linspace(3.4, 4.2, 17)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, outer).all()
+    corner = _positions("pantry-corner")
+    assert corner[:, 0].min() < 0.7 and np.abs(corner[:, 0] - 0.6).min() < 0.01
+    assert _hidden_length_m("pantry-corner", curve, segments) > 1.0
+    assert _hidden_length_m("pantry-corner", curve, outer) == 0.0
+    # pantry-line: along the diagonal, all of it in the curve's sight, at least 60 deg from
+    # every heading of the curve
+    assert _seen(_positions("pantry-line", 300), curve, segments).all()
+    assert _headings_apart_deg("pantry-line", "pantry-curve") > 60.0
+
+
+def test_arcadia_is_long_open_at_one_end_with_three_round_pillars_in_a_row() -> None:
+    arcadia = heldout_scene("arcadia")
+    walls = {w.name: w for w in arcadia.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in arcadia.walls)
+    assert names[:3] == ["south", "north", "west"]
+    assert (walls["south"].length_m, walls["north"].length_m, walls["west"].length_m) == (
+        12.0, 12.0, 4.5)
+    segments = arcadia.segments()
+    is_outer = np.array([not n.startswith("pillar") for n in names])
+    outer = segments[is_outer]
+    # the east end is open over the whole width: nothing at or beyond x = 12, its middle 2.25 m
+    # from every wall
+    assert segments[..., 0].max() == 12.0
+    assert not any(w.start[0] == w.end[0] == 12.0 for w in arcadia.walls)
+    assert np.isclose(distance_to_walls(np.array([[12.0, 2.25]]), segments)[0], 2.25)
+    # three pillars, each a regular 16-gon 0.5 m across its corners, 3.0 m apart down the middle
+    angle = np.radians(22.5 * np.arange(16))
+    centres = np.array([(3.0, 2.25), (6.0, 2.25), (9.0, 2.25)])
+    for label, centre in zip("ABC", centres, strict=True):
+        pillar = np.array([segments[k] for k, n in enumerate(names)
+                           if n.startswith(f"pillar {label} ")])
+        ideal = centre + 0.25 * np.column_stack([np.cos(angle), np.sin(angle)])
+        assert len(pillar) == 16 and np.allclose(pillar[:, 0], ideal, atol=1e-4)
+        assert np.allclose(pillar[:, 1], np.roll(pillar[:, 0], -1, axis=0))  # closed
+        assert distance_to_walls(pillar[:, 0], outer).min() > 1.99  # free-standing
+    assert len(names) == 3 + 48
+    opening = np.array([[[12.0, 0.0], [12.0, 4.5]]])
+    # the mapped curve: the west two-thirds, far from the open end; arcadia-open goes where it
+    # never does: round pillar C to 0.8 m from the open end
+    curve = _positions("arcadia-curve")
+    assert curve[:, 0].max() < 8.4 and distance_to_walls(curve, opening).min() > 3.6
+    open_end = _positions("arcadia-open")
+    assert distance_to_walls(open_end, opening).min() < 0.85
+    assert open_end[:, 0].max() > curve[:, 0].max() + 2.5
+    assert abs(_winding_deg("arcadia-open", centres[2])) > 180.0
+    assert np.linalg.norm(curve - centres[2], axis=1).min() > 1.0
+    # arcadia-line: a zigzag across the row between the pillars, all of it in the curve's
+    # sight, at least 60 deg from every heading of the curve
+    line = _positions("arcadia-line", 300)
+    assert np.linalg.norm(line[:, None] - centres[None], axis=2).min() > 1.0
+    assert np.sum(np.diff(np.sign(line[:, 1] - 2.25)) != 0) == 2  # crosses the row twice
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("arcadia-line", "arcadia-curve") > 60.0
+
+
+def test_scullery_has_no_right_angle_and_a_partition_hiding_a_nook() -> None:
+    scullery = heldout_scene("scullery")
+    walls = {w.name: w for w in scullery.walls}
+    names = list(walls)
+    outline, interior = _outline("scullery", 6)
+    assert np.all(np.abs(interior - 90.0) > 10.0) and np.all(interior < 180.0)  # convex
+    x, y = outline[:, 0], outline[:, 1]
+    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    assert 40.0 < area < 60.0 and np.isclose(area, 46.16)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north-east": 0.7, "west": 0.5}
+    segments = scullery.segments()
+    is_outer = np.array([not n.startswith("partition") for n in names])
+    outer = segments[is_outer]
+    assert is_outer.sum() == 6
+    lengths = np.linalg.norm(outer[:, 1] - outer[:, 0], axis=1)
+    assert np.all((lengths > 3.6) & (lengths < 5.1))
+    # the partition: 1.5 m (its west face) out of the south wall, 0.15 m thick, parallel to the
+    # south-east wall, one free end 1.3 m from it; a nook 1.3 m wide between them
+    west_face, end, east_face = (walls[f"partition {n}"] for n in ("west face", "end", "east face"))
+    assert np.isclose(west_face.length_m, 1.5, atol=1e-3)
+    assert np.isclose(end.length_m, 0.15, atol=1e-3)
+    south = segments[names.index("south")][None]
+    south_east = segments[names.index("south-east")]
+    base = np.array([west_face.start, east_face.end], dtype=np.float64)
+    assert distance_to_walls(base, south).max() < 1e-4  # out of the south wall
+    v = (south_east[1] - south_east[0]) / np.linalg.norm(south_east[1] - south_east[0])
+    inward = np.array([-v[1], v[0]])               # off the south-east wall, into the room
+    for face in (west_face, east_face):
+        d = np.subtract(face.end, face.start)
+        assert abs(d[0] * v[1] - d[1] * v[0]) / np.linalg.norm(d) < 1e-4  # parallel
+    offset = {n: float((np.asarray(walls[f"partition {n}"].start) - south_east[0]) @ inward)
+              for n in ("west face", "east face")}
+    assert np.isclose(offset["east face"], 1.3, atol=1e-4)  # the nook's width
+    assert np.isclose(offset["west face"] - offset["east face"], 0.15, atol=1e-4)
+    free = np.array([end.start, end.end], dtype=np.float64)
+    assert distance_to_walls(free, outer).min() > 1.25  # the free end
+    # the nook's bottom: its centre line (0.65 m from the partition and the south-east wall)
+    # from 0.56 to 0.7 m from the south wall, out of sight of the mapped curve (which stays
+    # west of x = 4.4); control: without the partition it is in sight
+    curve = _positions("scullery-curve")
+    assert curve[:, 0].max() < 4.4
+    bottom = south_east[0] + 0.65 * inward + np.linspace(0.35, 0.5, 7)[:, None] * v
+    assert np.all(distance_to_walls(bottom, south) > 0.55)
+    assert np.all(distance_to_walls(bottom, south) < 0.71)
+    assert not _seen(bottom, curve, segments).any()
+    assert _seen(bottom, curve, outer).all()
+    # scullery-nook: down the nook's centre line to its bottom; its last 0.25 m out of sight
+    drive = heldout_path("scullery-nook").trajectory()
+    nook = _positions("scullery-nook")
+    assert np.abs((nook[-1] - south_east[0]) @ inward - 0.65) < 0.01
+    start = drive.duration_s * (1.0 - 0.25 / drive.length_m)
+    hidden = drive.position(np.linspace(start, drive.duration_s, 50))
+    assert not _seen(hidden, curve, segments).any()
+    assert _seen(hidden, curve, outer).all()
+    assert _seen(nook[:1], curve, segments).all()  # starts in sight
+    # scullery-line: over the middle, all of it in the curve's sight, at least 60 deg from every
+    # heading of the curve
+    assert _seen(_positions("scullery-line", 300), curve, segments).all()
+    assert _headings_apart_deg("scullery-line", "scullery-curve") > 60.0
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -880,7 +1062,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14h": FRESH14B_CLEARANCE_M,
                  "fresh14i": FRESH14B_CLEARANCE_M,
                  "fresh14j": FRESH14B_CLEARANCE_M,
-                 "fresh14k": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14k": FRESH14B_CLEARANCE_M,
+                 "fresh14l": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
