@@ -390,6 +390,16 @@ def confirm_start(pose: FloatArray, cov: FloatArray,
     return "uncertain", (np.array(pose, dtype=np.float64), np.array(cov, dtype=np.float64)), count
 
 
+def open_world(tables: SensorTables, config: FilterConfig) -> bool:
+    """Whether a global start may never be reported ``converged`` on ``tables``: a map
+    built from runs (not :attr:`~localization.sensor.SensorTables.complete`) with an open
+    wall end (:attr:`~localization.sensor.SensorTables.open_ends`) has free space it knows
+    nothing of, where the robot may stand hearing walls that look like mapped ones, and
+    ``FilterConfig.open_map_global`` is ``"uncertain"``."""
+    return (config.open_map_global == "uncertain" and not tables.complete
+            and tables.open_ends > 0)
+
+
 def reconfirm(candidate: bool, fit: float, count: int, config: FilterConfig) -> int:
     """The count of :attr:`ParticleFilter.recovery` after one more block while the filter
     re-confirms after a misfit (``FilterConfig.reconfirm_blocks``): ``count``
@@ -451,6 +461,7 @@ class ParticleFilter:
         self.jump_gap = 0.0
         self.confirmed = False
         self.recovery = -1
+        self.global_start = False
         if pose is None:
             self.reset_global()
         else:
@@ -477,6 +488,7 @@ class ParticleFilter:
         self.jump_gap = 0.0
         self.confirmed = False
         self.recovery = -1
+        self.global_start = True
 
     def reset_tracked(self, pose: FloatArray, cov: FloatArray) -> None:
         """Gaussian around a known pose."""
@@ -495,6 +507,7 @@ class ParticleFilter:
         self.dwell = 0
         self.jump_gap = 0.0
         self.confirmed = True
+        self.global_start = False
         self.recovery = -1
         cl = self.config.cluster
         self.converged = bool(math.sqrt(max(c[0, 0] + c[1, 1], 0.0)) <= cl.converged_std_m
@@ -585,20 +598,30 @@ class ParticleFilter:
                 twin_gap = twin_evidence(self.tables, meas, estimate.pose, twins,
                                          self.twin_gap, cfg.twin_memory)
                 rivals = twins[twin_gap < cfg.twin_margin_nats]
-            # poses elsewhere that explain the blocks as well (better, while anchored)
-            # two-peak proposals while anchored only: they find ties, which an unanchored
-            # filter counts against its estimate (global starts slowed down)
+            # poses elsewhere that explain the blocks as well (better, while anchored);
+            # unanchored, near ties join too (rival_admit_nats): a global start must know
+            # of every place that explains the blocks about as well
             params = (cfg.rival_params if anchored
-                      else dataclasses.replace(cfg.rival_params, pair_share=0.0))
+                      else dataclasses.replace(cfg.rival_params,
+                                               pair_share=cfg.rival_pair_share_unanchored,
+                                               admit_nats=cfg.rival_admit_nats))
             held = _rivals.update(self.tables, meas, estimate.pose, held, params,
                                   self.rng, float(at_estimate.log_likelihood[0]))
             found = _rivals.active(held, anchored, cfg.rival_margin_nats, cfg.twin_margin_nats)
             doubts = _rivals.active(held, anchored, min(cfg.rival_doubt_nats,
                                                         cfg.rival_margin_nats),
                                     cfg.twin_margin_nats).shape[0]
-            rivals = np.vstack([rivals, found])
+            # ties only doubt (unless rival_tie_particles): particles go to rivals that
+            # explained the recent blocks better by more than rival_doubt_nats
+            fed = (found if anchored or cfg.rival_tie_particles
+                   else _rivals.active(held, True, min(cfg.rival_doubt_nats,
+                                                       cfg.rival_margin_nats), 0.0))
             # data-driven rivals get particles only when the filter may re-localize
-            alive = rivals if cfg.relocalize else rivals[: rivals.shape[0] - found.shape[0]]
+            alive = np.vstack([rivals, fed]) if cfg.relocalize else rivals
+            # ties that only doubt leave the filter's own logic (confirmation, holds,
+            # refinement) alone: they make the status uncertain at the end (``doubts``)
+            rivals = np.vstack([rivals, found if anchored or cfg.rival_tie_particles
+                                else fed])
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
                               cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
@@ -648,6 +671,10 @@ class ParticleFilter:
             # a place elsewhere explains the recent blocks better, by less than a kidnap
             # needs: the estimate stands, the status says it is in doubt
             status = "uncertain"
+        if status == "converged" and self.global_start and open_world(self.tables, cfg):
+            # a global start on an open map: the robot may stand where the map knows
+            # nothing; the filter goes on as confirmed, the status says so
+            status = "uncertain"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
         particles_pose = estimate.pose
         if (cfg.report_reckoned and far and reckoned is not None and status != "converged"
@@ -662,7 +689,9 @@ class ParticleFilter:
         if back.shape[0] and cfg.relocalize:
             # a held jump the blocks do not prefer: particles go back where the odometry says
             alive = np.vstack([alive, back])
-        if meas is not None and (reseed or rivals.shape[0] or low_ess or back.shape[0]):
+        # rivals that only put the status in doubt do not move the particles
+        moved = rivals.shape[0] if cfg.rival_tie_particles or anchored else alive.shape[0]
+        if meas is not None and (reseed or moved or low_ess or back.shape[0]):
             n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
             p_inject = 0.0
@@ -796,6 +825,7 @@ class ParticleFilter:
                              else self.reckoned[1].copy()),
             "dwell": np.array(self.dwell, dtype=np.int64),
             "confirmed": np.array(self.confirmed),
+            "global_start": np.array(self.global_start),
             "recovery": np.array(self.recovery, dtype=np.int64),
             "jump_gap": np.array(self.jump_gap, dtype=np.float64),
             "rng": np.array(json.dumps(self.rng.bit_generator.state)),
@@ -845,6 +875,7 @@ class ParticleFilter:
         pf.confirmed = (bool(state["confirmed"]) if "confirmed" in state
                         else pf.reckoned is not None)
         pf.jump_gap = float(state["jump_gap"]) if "jump_gap" in state else 0.0
+        pf.global_start = bool(state["global_start"]) if "global_start" in state else False
         pf.recovery = int(state["recovery"]) if "recovery" in state else -1
         if "scatter_range_m" in state and "scatter_cos" in state:
             pf.scatter = refine.Scatter(

@@ -86,6 +86,9 @@ class RivalParams:
     pair_share : float
         Share of the proposals that explain two peaks at once
         (:func:`~localization.sensor.pair_proposals`).
+    admit_nats : float
+        A proposal joins when it explains the block at least as well as the estimate less
+        this (nats; 0: at least as well).
     """
 
     proposals: int
@@ -96,6 +99,7 @@ class RivalParams:
     drop_nats: float
     refine_top: int = 0
     pair_share: float = 0.0
+    admit_nats: float = 0.0
 
 
 def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArray,
@@ -223,8 +227,8 @@ def update(tables: SensorTables, measurement: Measurement, estimate: FloatArray,
         cand, ll_cand = refine_best(tables, measurement, cand, ll_cand, held,
                                     params.refine_top, params.separation_m,
                                     params.separation_rad)
-    new = admit(cand, ll_cand, ll_est, held, params.max_rivals, params.separation_m,
-                params.separation_rad)
+    new = admit(cand, ll_cand, ll_est - params.admit_nats, held, params.max_rivals,
+                params.separation_m, params.separation_rad)
     poses = np.vstack([rivals.poses, new])
     prev = np.concatenate([params.memory * rivals.gap, np.zeros(new.shape[0])])
     poses, ll = refine_poses(tables, measurement, poses,

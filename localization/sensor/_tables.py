@@ -20,6 +20,10 @@ from mapping.wallmap import WallMap
 
 FloatArray = NDArray[np.float64]
 
+#: An end sigma above this (m) marks an open end (``WallFitParams.open_end_sigma_m``: 1 m;
+#: ends the runs saw get a few centimetres).
+OPEN_END_SIGMA_M = 0.5
+
 
 @dataclass(frozen=True)
 class SensorTables:
@@ -95,6 +99,17 @@ class SensorTables:
         """The walls with free ends run on, and each end's sigma (:func:`soft_end_walls`),
         computed once."""
         return soft_end_walls(self.walls, self.wall_sigma, end_sigma=self.end_sigma)
+
+    @cached_property
+    def open_ends(self) -> int:
+        """Wall ends the runs never looked past: ``end_sigma`` above
+        :data:`OPEN_END_SIGMA_M` (the wall fit gives such an end a metre, a seen one a few
+        centimetres; 0 where the map says nothing of its ends). A map with one has free
+        space it knows nothing of beyond it."""
+        if self.end_sigma is None:
+            return 0
+        es = np.asarray(self.end_sigma, dtype=np.float64)
+        return int(np.sum(np.isfinite(es) & (es > OPEN_END_SIGMA_M)))
 
     @cached_property
     def symmetries(self) -> FloatArray:

@@ -41,6 +41,7 @@ from localization.sensor import (
     build_tables,
     explanation,
     prepare_measurement,
+    symmetric_poses,
 )
 from mapping.forward import WallSet, predicted_heatmap
 from mapping.heatmap import HeatMap
@@ -234,7 +235,8 @@ def test_rivals_survive_a_checkpoint(tables: SensorTables,
     ("rival_proposals", -1), ("max_rivals", 0), ("rival_separation_m", 0.0),
     ("rival_separation_deg", 200.0), ("rival_drop_nats", 0.0), ("rival_margin_nats", -1.0),
     ("rival_memory", 1.0), ("rival_doubt_nats", -0.5), ("rival_refine_top", -1),
-    ("rival_refine_top", 2.5), ("rival_pair_share", 1.5)])
+    ("rival_refine_top", 2.5), ("rival_pair_share", 1.5), ("rival_admit_nats", -0.1),
+    ("rival_pair_share_unanchored", 1.5)])
 def test_rival_settings_are_validated(field: str, value: float) -> None:
     kwargs: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
@@ -292,3 +294,53 @@ def test_refine_best_moves_the_best_far_proposals_onto_their_peak(
     # top 0 or nothing far: unchanged
     same, same_ll = refine_best(tables, m, cand[1:2], ll[1:2], held, 4, 0.5, math.radians(30.0))
     np.testing.assert_array_equal(same, cand[1:2])
+
+
+def test_update_admits_proposals_within_admit_nats_of_the_estimate(
+        tables: SensorTables, kidnap: tuple[FloatArray, list]) -> None:
+    """``RivalParams.admit_nats``: at the truth near the corridor's west end (its end wall
+    heard), no place elsewhere explains the block as well, so no rival joins at 0; with a
+    tolerance the best near misses join, each worse than the estimate by at most the
+    tolerance (gap in (0, admit_nats] after the refinement can only raise their scores)."""
+    truth, hms = kidnap
+    m = prepare_measurement(hms[2], tables.config)
+    base = FilterConfig().rival_params
+    strict = update(tables, m, truth[2], Rivals.none(), base, np.random.default_rng(0))
+    assert np.all(strict.gap <= 0.0)
+    loose = update(tables, m, truth[2], Rivals.none(),
+                   dataclasses.replace(base, admit_nats=50.0), np.random.default_rng(0))
+    assert loose.n >= 1 and np.any(loose.gap > 0.0)
+    assert np.all(loose.gap <= 50.0)
+    assert np.all(far_from(loose.poses, truth[2], 0.5, math.radians(30)))
+
+
+@pytest.mark.parametrize("tie_particles", [True, False])
+def test_an_unanchored_tie_puts_the_status_in_doubt_and_gets_particles_only_if_asked(
+        tables: SensorTables, tie_particles: bool) -> None:
+    """``rival_tie_particles``: an unanchored filter (a global start) in the corridor's middle,
+    where poses along the middle line tie, holds rivals there (one handed in 2 m ahead,
+    evidence gap +1 nat; others found) and is never ``converged``; with True the ties get
+    the particles of ``twin_fraction``, with False none (no rival is better by
+    ``rival_doubt_nats``), and the estimate stays at the truth either way."""
+    truth = trajectory(np.array([5.5, 0.9, 0.0]), [(SPEED, 0.0)] * 7, DT)
+    hms = _blocks(truth)
+    cfg = FilterConfig(rival_tie_particles=tie_particles)
+    pf = ParticleFilter(tables, cfg, np.random.default_rng(0), pose=truth[0], cov=TIGHT)
+    _drive(pf, hms[:6])
+    pf.anchored = False                                   # as after a global start
+    pf.rivals = Rivals((truth[5] + [2.0, 0.0, 0.0])[None, :], np.array([1.0]))
+    est = pf.step(hms[6], SPEED, 0.0, DT)
+    assert est.status == "uncertain"
+    assert np.hypot(*(est.pose[:2] - truth[6, :2])) < 0.05
+    ties = pf.rivals.poses[pf.rivals.gap >= -cfg.rival_doubt_nats]
+    assert ties.shape[0] >= 1 and pf.rivals.n == ties.shape[0]
+    # the corridor's own symmetric twins of the estimate get particles either way
+    twins = symmetric_poses(tables.symmetries, est.pose)
+    ties = np.array([t for t in ties
+                     if np.all(far_from(twins, t, 0.3, math.radians(20.0)))]).reshape(-1, 3)
+    assert ties.shape[0] >= 1
+    near = sum(int(np.sum(~far_from(pf.poses, t, 0.3, math.radians(20.0)))) for t in ties)
+    if tie_particles:
+        assert near > 0              # a share of twin_fraction (the twins hold the rest)
+    else:
+        assert near == 0

@@ -209,7 +209,11 @@ def test_after_a_misfit_converged_waits_for_well_explained_blocks(
     refinement follows an accepted estimate either way), only the status differs."""
     runs = {}
     for n in (0, 3):
-        cfg = dataclasses.replace(CONFIG, jump_dwell_blocks=0, reconfirm_blocks=n)
+        # ties after the jump only put the status in doubt at the end: counted against both
+        # runs' statuses, they would hide the rule under test (so the rival rules of before)
+        cfg = dataclasses.replace(CONFIG, jump_dwell_blocks=0, reconfirm_blocks=n,
+                                  rival_tie_particles=True, rival_admit_nats=0.0,
+                                  rival_pair_share_unanchored=0.0)
         pf, _ = _tracked(tables, track, seed, cfg)
         _, k_hms = kidnap
         runs[n] = [pf.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
@@ -562,6 +566,40 @@ def test_a_global_start_says_converged_only_after_confirmation(
     assert pf.confirmed
 
 
+def test_a_global_start_on_an_open_map_is_never_converged(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
+    """``FilterConfig.open_map_global``: the same room as a map built from runs with one open
+    wall end (the end the runs never looked past, sigma 1 m) has free space it knows nothing
+    of, where a robot could hear walls like the mapped ones: a global start there is never
+    ``converged`` (the estimate is still found: within 10 cm at the end), while with
+    ``"confirm"`` the same start on the same map is confirmed. An ideal (complete) map and a
+    tracked start are not affected."""
+    truth, hms = track
+    end_sigma = np.full((ROOM.shape[0], 2), 0.02)
+    end_sigma[5, 1] = 1.0                           # the north stub's free end: open
+    open_map = dataclasses.replace(tables, complete=False, end_sigma=end_sigma)
+    closed = dataclasses.replace(open_map, end_sigma=np.full((ROOM.shape[0], 2), 0.02))
+    assert open_map.open_ends == 1 and closed.open_ends == 0 and tables.open_ends == 0
+    status = {}
+    for name, tab, rule in (("open", open_map, "uncertain"), ("confirm", open_map, "confirm"),
+                            ("closed", closed, "uncertain"), ("ideal", tables, "uncertain")):
+        cfg = dataclasses.replace(CONFIG, confirm_blocks=3, open_map_global=rule)
+        pf = ParticleFilter(tab, cfg, np.random.default_rng(5))
+        ests = [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)]
+        status[name] = [e.status for e in ests]
+        assert _error_m(ests[-1], truth[-1]) < 0.1, name
+        if name == "open":                  # the checkpoint keeps the global start
+            again = ParticleFilter.from_state_dict(pf.state_dict(), tab)
+            assert again.global_start and again.confirmed
+            assert again.step(hms[-1], *_odometry(len(hms) - 1)).status != "converged"
+    assert "converged" not in status["open"]
+    for name in ("confirm", "closed", "ideal"):
+        assert "converged" in status[name], name
+    cfg = dataclasses.replace(CONFIG, open_map_global="uncertain")
+    pf = ParticleFilter(open_map, cfg, np.random.default_rng(0), pose=truth[0], cov=TIGHT)
+    assert [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)][-1].status == "converged"
+
+
 def test_without_relocalization_a_kidnap_stays_lost(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
         kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
@@ -712,6 +750,7 @@ def test_checkpoint_without_the_status_fields_still_loads(tables: SensorTables) 
     ("reseed_fraction", -0.1), ("reseed_fraction", 0.6),
     ("reseed_after", 0), ("reseed_after", 1001),
     ("proposal_candidates", 0), ("proposal_candidates", 101),
+    ("open_map_global", "never"),
 ])
 def test_status_settings_are_validated(field: str, value: float) -> None:
     bad: dict[str, Any] = {field: value}
@@ -721,6 +760,6 @@ def test_status_settings_are_validated(field: str, value: float) -> None:
 
 def test_status_settings_survive_the_json_round_trip() -> None:
     cfg = FilterConfig(fit_threshold=0.7, lost_after=3, relocalize=False, reseed_fraction=0.1,
-                       reseed_after=6, proposal_candidates=8)
+                       reseed_after=6, proposal_candidates=8, open_map_global="confirm")
     assert FilterConfig.from_json(cfg.to_json()) == cfg
     assert json.loads(cfg.to_json())["relocalize"] is False
