@@ -167,7 +167,8 @@ class LocalizationFactory:
                 raise InvalidSpec("initial_covariance", "initial_covariance must be invertible "
                                   "for filter 'grid'", "a positive definite 3x3") from None
         rng = np.random.default_rng(spec.seed)
-        pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles), rng, pose, cov)
+        pf = ParticleFilter(tables, FilterConfig(n_particles=spec.particles,
+                                                 open_map_global=spec.open_map), rng, pose, cov)
         return _pinned(base, Localizer(pf, tables, config))
 
     def restore(self, map_id: str, spec: FilterSpec, state: dict[str, Any]) -> Localizer:

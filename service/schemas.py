@@ -171,6 +171,10 @@ class SessionCreate(_Strict):
         "model then also predicts every wall echo's copies off the floor (and the ceiling)")
     ceiling_height_m: float | None = Field(
         None, gt=0, le=50, description="the ceiling's height (m), with sonar_height_m")
+    open_map: Literal["uncertain", "confirm"] = Field(
+        "uncertain", description="a global start on a map built from runs with an open wall "
+        "end (free space the map knows nothing of): never reported converged ('uncertain'), "
+        "or as on a closed map ('confirm': the robot is known to be in the mapped part)")
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
 
@@ -270,6 +274,9 @@ class SessionInfo(BaseModel):
     sonar_height_m: float | None = Field(None, description="sonar height asked for (null: a "
                                          "2-D room)")
     ceiling_height_m: float | None = Field(None, description="ceiling height asked for")
+    open_map: Literal["uncertain", "confirm"] = Field(
+        "uncertain", description="what a global start on an open map reports (see "
+        "POST /sessions)")
     created_at: float
     last_active_at: float
     expires_in_s: float

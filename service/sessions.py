@@ -62,6 +62,7 @@ class FilterSpec:
     sound_speed_m_s: float | None = None  # the session's air; None: the map's (issue 16)
     sonar_height_m: float | None = None   # floor / ceiling for the echo model (issue 16)
     ceiling_height_m: float | None = None
+    open_map: str = "uncertain"  # FilterConfig.open_map_global (issue 14)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -80,6 +81,7 @@ class FilterSpec:
             sound_speed_m_s=_opt_float(d, "sound_speed_m_s"),
             sonar_height_m=_opt_float(d, "sonar_height_m"),
             ceiling_height_m=_opt_float(d, "ceiling_height_m"),
+            open_map=str(d.get("open_map", "uncertain")),
         )
 
 

@@ -39,6 +39,11 @@ def add_localize(sub: argparse._SubParsersAction) -> None:
                    help="sensor model: echo (physical, needs a map with walls), correlation or "
                    "range (against G, the baseline); auto = echo when the map has walls")
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
+    p.add_argument("--open-map", choices=("uncertain", "confirm"), default="uncertain",
+                   help="a global start on a map built from runs with an open wall end "
+                   "(free space the map knows nothing of): never reported converged "
+                   "('uncertain'), or as on a closed map ('confirm': the robot is known to "
+                   "be in the mapped part)")
     p.add_argument("--beta", type=float, default=None,
                    help="sensor sharpness (default 200; `omnisonar calibrate` picks one per map)")
     p.add_argument("--sonar-height", type=float, metavar="M",
@@ -86,7 +91,8 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     if args.filter == "grid":
         filt = GridFilter(tables, pose=pose0, cov=cov0)
     else:
-        filt = ParticleFilter(tables, FilterConfig(n_particles=args.particles),
+        filt = ParticleFilter(tables, FilterConfig(n_particles=args.particles,
+                                                   open_map_global=args.open_map),
                               np.random.default_rng(args.seed), pose=pose0, cov=cov0)
 
     def heat_maps():  # type: ignore[no-untyped-def]

@@ -115,6 +115,7 @@ def session_info(store: SessionStore, s: Session) -> SessionInfo:
         particles=s.spec.particles, seed=s.spec.seed, beta=s.spec.beta,
         sound_speed_m_s=s.spec.sound_speed_m_s, sonar_height_m=s.spec.sonar_height_m,
         ceiling_height_m=s.spec.ceiling_height_m,
+        open_map=s.spec.open_map,  # type: ignore[arg-type]
         created_at=s.created_at,
         last_active_at=s.last_active_at, expires_in_s=store.expires_in_s(s),
         last_seq=s.last_seq, n_updates=s.n_updates,
@@ -150,7 +151,8 @@ def create_session(
     spec = FilterSpec(kind=req.filter, particles=req.particles, seed=seed, initial_pose=pose,
                       initial_covariance=None if cov is None else tuple(tuple(r) for r in cov),
                       beta=req.beta, map_sha256=sha, sound_speed_m_s=req.sound_speed_m_s,
-                      sonar_height_m=req.sonar_height_m, ceiling_height_m=req.ceiling_height_m)
+                      sonar_height_m=req.sonar_height_m, ceiling_height_m=req.ceiling_height_m,
+                      open_map=req.open_map)
     # InvalidSpec (422) names a field the filter refuses
     s = store.create(req.map_id, spec, owner=who.name, max_per_owner=cfg.max_sessions_per_key)
     response.headers["Location"] = f"/sessions/{s.id}"

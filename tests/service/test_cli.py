@@ -306,3 +306,17 @@ def test_every_subcommand_help_shows_its_defaults() -> None:
     assert missing == [] and twice == []
     text = " ".join(sub.choices["localize"].format_help().split())
     assert "(default: global)" in text and "(default: 2000)" in text
+
+
+def test_localize_open_map_choices(capsys: pytest.CaptureFixture[str]) -> None:
+    """``localize --open-map``: a choice of the filter's ``open_map_global`` (the help shows
+    both and the default); anything else is refused naming the option."""
+    from service.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["localize", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--open-map {uncertain,confirm}" in text and "uncertain" in text
+    with pytest.raises(SystemExit) as exc:
+        main(["localize", "--map", "m.npz", "r.npz", "--open-map", "never"])
+    assert exc.value.code == 2 and "--open-map" in capsys.readouterr().err

@@ -194,3 +194,23 @@ def test_session_heights_reach_the_echo_model(client: TestClient) -> None:
     bad = client.post("/sessions", json={"map_id": "room", "sonar_height_m": 2.0,
                                          "ceiling_height_m": 1.0})
     assert bad.status_code == 422 and "ceiling_height_m" in bad.text
+
+
+def test_session_open_map_reaches_the_filter(client: TestClient) -> None:
+    """``open_map`` at creation (issue 14: what a global start on a map with an open wall end
+    reports) reaches the session's filter config, is echoed by the session, survives the
+    spec's round trip and defaults to "uncertain"; another value is refused naming it."""
+    from service.sessions import FilterSpec
+
+    r = client.post("/sessions", json={"map_id": "room", "particles": 100, "global": True,
+                                       "open_map": "confirm"})
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    assert client.get(f"/sessions/{sid}").json()["open_map"] == "confirm"
+    session = client.app.state.sessions.get(sid)  # type: ignore[attr-defined]
+    assert session.tracker.filter.config.open_map_global == "confirm"
+    assert FilterSpec.from_dict(session.spec.to_dict()).open_map == "confirm"
+    plain = client.post("/sessions", json={"map_id": "room", "particles": 100, "global": True})
+    assert plain.json()["open_map"] == "uncertain"
+    bad = client.post("/sessions", json={"map_id": "room", "open_map": "never"})
+    assert bad.status_code == 422 and "open_map" in bad.text
