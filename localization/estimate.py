@@ -111,6 +111,9 @@ class PoseEstimate:
         Whether ``pose`` and ``cov`` are dead reckoning from the last confirmed convergence
         (never with status ``converged``): the particles' mode lies far from it and the
         blocks do not prefer it by the prior odds of a kidnap (``modes`` hold it).
+    reason : str
+        Particle filter: why the status is not ``converged`` (one of
+        :data:`STATUS_REASONS`; ``""`` when it is, or when the filter gives none).
     """
 
     pose: FloatArray
@@ -129,6 +132,7 @@ class PoseEstimate:
     covered: bool = True
     refined: bool = False
     reckoned: bool = False
+    reason: str = ""
 
 
 
@@ -335,6 +339,20 @@ def _rmse(err: FloatArray) -> tuple[float, float]:
 
 TRACK_STATUSES = ("converged", "uncertain", "lost")
 """The per-block status of a track (CLI track CSV), most confident first."""
+
+STATUS_REASONS = ("", "unexplained", "misfit", "no_echo", "outside_coverage", "rivals",
+                  "spread", "confirming", "jump_held", "reconfirming", "rival_doubt",
+                  "open_map")
+"""Why a particle filter's block is not ``converged`` (:attr:`PoseEstimate.reason`):
+``unexplained`` lost, blocks in a row the estimate does not explain; ``misfit`` this block
+not explained; ``no_echo`` the block heard nothing; ``outside_coverage`` the estimate lies
+where the map has no evidence; ``rivals`` a symmetric twin or another place explains the
+blocks as well (the modes hold them); ``spread`` the set is not one compact mode;
+``confirming`` a global start waiting for agreeing blocks; ``jump_held`` an estimate far
+from dead reckoning waiting for the blocks to prefer it; ``reconfirming`` after a misfit;
+``rival_doubt`` a place elsewhere explained the recent blocks better (or, after a global
+start, as well); ``open_map`` a global start on a map with an open wall end; ``""``
+converged (or no reason given)."""
 
 
 def track_status(estimate: PoseEstimate) -> str:

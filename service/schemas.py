@@ -256,6 +256,10 @@ class Estimate(BaseModel):
                            "last confirmed convergence (status never converged): the particles "
                            "went to a look-alike the blocks do not prefer by the prior odds of "
                            "a kidnap, or where the map predicts no echo; modes hold it")
+    reason: str = Field("", description="particle filter: why the status is not converged "
+                        "(empty when it is): unexplained, misfit, no_echo, outside_coverage, "
+                        "rivals, spread, confirming, jump_held, reconfirming, rival_doubt, "
+                        "open_map (docs: localization guide)")
     processing_ms: float = Field(description="server time for this update")
 
 

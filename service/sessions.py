@@ -236,7 +236,7 @@ def estimate_to_json(est: PoseEstimate) -> dict[str, Any]:
         "model": str(est.model), "likelihood_scale": float(est.likelihood_scale),
         "status": str(est.status), "fit": None if math.isnan(est.fit) else float(est.fit),
         "covered": bool(est.covered), "refined": bool(est.refined),
-        "reckoned": bool(est.reckoned),
+        "reckoned": bool(est.reckoned), "reason": str(est.reason),
     }
 
 
@@ -261,7 +261,7 @@ def estimate_from_json(d: dict[str, Any]) -> PoseEstimate:
             status=str(d.get("status", "converged" if d["converged"] else "uncertain")),
             fit=math.nan if d.get("fit") is None else float(d["fit"]),
             covered=bool(d.get("covered", True)), refined=bool(d.get("refined", False)),
-            reckoned=bool(d.get("reckoned", False)))
+            reckoned=bool(d.get("reckoned", False)), reason=str(d.get("reason", "")))
     extra = d.get("extra", {})
     cov = arr(d["covariance"])
     return PoseEstimate(

@@ -281,6 +281,29 @@ def block_status(converged: bool, covered: bool, misfits: int, lost_after: int,
     return "converged"
 
 
+def status_reason(converged: bool, rivals: bool, covered: bool, misfits: int,
+                  lost_after: int, heard_any: bool = True) -> str:
+    """Why :func:`block_status` gives the status it gives (one of
+    :data:`~localization.estimate.STATUS_REASONS`, the first that applies in its order):
+    ``unexplained`` (lost: ``lost_after`` blocks in a row), ``misfit`` (this block not
+    explained), ``no_echo``, ``outside_coverage``, ``rivals`` (a symmetric twin or another
+    place explains the blocks as well), ``spread`` (the set is not one compact mode), ``""``
+    (converged)."""
+    if misfits >= lost_after:
+        return "unexplained"
+    if misfits > 0:
+        return "misfit"
+    if not heard_any:
+        return "no_echo"
+    if not covered:
+        return "outside_coverage"
+    if rivals:
+        return "rivals"
+    if not converged:
+        return "spread"
+    return ""
+
+
 def contradicts(pose: FloatArray, cov: FloatArray, reckoned: tuple[FloatArray, FloatArray],
                 config: FilterConfig) -> bool:
     """Whether an estimate (pose, cov) contradicts the dead-reckoned ``reckoned`` (mean,
@@ -623,8 +646,11 @@ class ParticleFilter:
             rivals = np.vstack([rivals, found if anchored or cfg.rival_tie_particles
                                 else fed])
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
+        heard_any = meas is None or meas.n_peaks > 0 or not echo
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
-                              cfg.lost_after, meas is None or meas.n_peaks > 0 or not echo)
+                              cfg.lost_after, heard_any)
+        reason = status_reason(estimate.converged, rivals.shape[0] > 0, covered, misfits,
+                               cfg.lost_after, heard_any)
         candidate = status
         reckoned = (None if self.reckoned is None else
                     refine.predict(self.reckoned[0], self.reckoned[1], speed_m_s,
@@ -651,10 +677,12 @@ class ParticleFilter:
         if status == "converged" and confirmed:
             status, reckoned, dwell = hold_jump(estimate.pose, estimate.cov, reckoned, dwell,
                                                 cfg, evidence, far, counted)
+            reason = reason if status == "converged" else "jump_held"
         elif status == "converged":
             status, reckoned, dwell = confirm_start(estimate.pose, estimate.cov, reckoned,
                                                     dwell, cfg, fit)
             confirmed = status == "converged"
+            reason = reason if confirmed else "confirming"
         # after a misfit, convergence must be re-confirmed by well-explained blocks
         # (a jump the hold accepted moves the dead-reckoned pose all the same)
         accepted = status == "converged"
@@ -666,16 +694,18 @@ class ParticleFilter:
             if status == "converged" and recovery >= cfg.reconfirm_blocks:
                 recovery = -1
             elif status == "converged":
-                status = "uncertain"
+                status, reason = "uncertain", "reconfirming"
         if status == "converged" and doubts:
             # a place elsewhere explains the recent blocks better, by less than a kidnap
-            # needs: the estimate stands, the status says it is in doubt
-            status = "uncertain"
+            # needs (or, unanchored, as well): the estimate stands, the status says it is in
+            # doubt
+            status, reason = "uncertain", "rival_doubt"
         if status == "converged" and self.global_start and open_world(self.tables, cfg):
             # a global start on an open map: the robot may stand where the map knows
             # nothing; the filter goes on as confirmed, the status says so
-            status = "uncertain"
-        estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered)
+            status, reason = "uncertain", "open_map"
+        estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered,
+                                       reason=reason)
         particles_pose = estimate.pose
         if (cfg.report_reckoned and far and reckoned is not None and status != "converged"
                 and self.tables.config.model == "echo" and jump_gap < cfg.kidnap_prior_nats):

@@ -145,7 +145,7 @@ TRACK_CSV_COLUMNS = (
     "block", "x_m", "y_m", "yaw_rad", "std_x_m", "std_y_m", "std_yaw_rad", "ess", "converged",
     "n_modes", "direction_observable", "err_m", "err_rad",
     "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw", "status", "refined",
-    "reckoned",
+    "reckoned", "reason",
 )
 """Columns of the ``localize --out`` track CSV (documented in docs/formats.md)."""
 
@@ -159,7 +159,7 @@ def _track_row(k: int, est: PoseEstimate, err: tuple[float, float]) -> list[Any]
     upper = est.cov[np.triu_indices(3)]          # xx, xy, xyaw, yy, yyaw, yawyaw
     return [k, *est.pose, *sd, est.ess, int(est.converged), len(est.modes),
             int(est.direction_observable), *err, *upper, track_status(est), int(est.refined),
-            int(est.reckoned)]
+            int(est.reckoned), est.reason]
 
 
 def _track_csv(rows: list[list[Any]]) -> str:

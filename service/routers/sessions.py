@@ -103,7 +103,7 @@ def estimate_model(session_id: str, seq: int | None, est: PoseEstimate,
         direction_observable=bool(est.direction_observable),
         likelihood_scale=float(est.likelihood_scale), status=est.status,  # type: ignore[arg-type]
         fit=None if math.isnan(est.fit) else float(est.fit), covered=bool(est.covered),
-        refined=bool(est.refined), reckoned=bool(est.reckoned),
+        refined=bool(est.refined), reckoned=bool(est.reckoned), reason=str(est.reason),
         processing_ms=float(processing_ms),
     )
 

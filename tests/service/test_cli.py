@@ -31,8 +31,10 @@ def test_cli_localize_tracked(simulated: tuple[Any, Any], tmp_path: Any,
     out = json.loads(capsys.readouterr().out)
     assert out["blocks_to_converge"] == 0 and out["position_rmse_m"] <= 0.03
     rows = np.loadtxt(tmp_path / "track.csv", delimiter=",", skiprows=1,
-                      converters={19: lambda s: 1.0 if s == "converged" else 0.0})
-    assert rows.shape == (held.n_blocks, 22)
+                      converters={19: lambda s: 1.0 if s == "converged" else 0.0,
+                                  22: lambda s: float(len(s))})      # reason: "" when converged
+    assert rows.shape == (held.n_blocks, 23)
+    assert np.all((rows[:, 19] == 1.0) == (rows[:, 22] == 0.0))
     assert main(["localize", "--map", str(tmp_path / "G.npz"), str(tmp_path / "run.npz"),
                  "--particles", "0"]) == 2
 
@@ -165,7 +167,7 @@ def test_localize_never_converged_prints_strict_json_and_full_track_csv(
     lines = csv_path.read_text().splitlines()
     assert lines[0] == ("block,x_m,y_m,yaw_rad,std_x_m,std_y_m,std_yaw_rad,ess,converged,"
                         "n_modes,direction_observable,err_m,err_rad,cov_xx,cov_xy,cov_xyaw,"
-                        "cov_yy,cov_yyaw,cov_yawyaw,status,refined,reckoned")
+                        "cov_yy,cov_yyaw,cov_yawyaw,status,refined,reckoned,reason")
     assert len(lines) == 1 + far.n_blocks and not list(tmp_path.joinpath("out").glob(".*"))
     header = lines[0].split(",")
     for line in lines[1:]:

@@ -207,8 +207,11 @@ def test_estimate_json_roundtrip_is_exact(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.modes[0].cov, s.estimate.modes[0].cov)
     flagged = dataclasses.replace(s.estimate, reckoned=True, refined=False)
     assert estimate_from_json(json.loads(json.dumps(estimate_to_json(flagged)))).reckoned
-    old = {k: v for k, v in d.items() if k != "reckoned"}       # written before the flag
-    assert estimate_from_json(old).reckoned is False
+    old = {k: v for k, v in d.items() if k not in ("reckoned", "reason")}  # written before
+    assert estimate_from_json(old).reckoned is False and estimate_from_json(old).reason == ""
+    doubt = dataclasses.replace(s.estimate, status="uncertain", reason="rival_doubt")
+    assert estimate_from_json(json.loads(json.dumps(estimate_to_json(doubt)))).reason == (
+        "rival_doubt")
 
 
 def test_format_1_checkpoint_still_loads(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from localization.estimate import PoseEstimate
+from localization.estimate import STATUS_REASONS, PoseEstimate
 from localization.particle_filter import FilterConfig, ParticleFilter
 from localization.particle_filter._filter import (  # not exported: tested directly
     block_fit,
@@ -30,6 +30,7 @@ from localization.particle_filter._filter import (  # not exported: tested direc
     propose,
     reckoned_evidence,
     reconfirm,
+    status_reason,
 )
 from localization.sensor import (
     SensorConfig,
@@ -127,6 +128,47 @@ def test_block_status_truth_table(converged: bool, covered: bool, misfits: int,
 
 
 # ---- the pieces the status reads -----------------------------------------------------------
+@pytest.mark.parametrize(("converged", "rivals", "covered", "misfits", "heard", "reason"), [
+    (True, False, True, 0, True, ""),
+    (False, False, True, 0, True, "spread"),
+    (True, True, True, 0, True, "rivals"),
+    (False, True, True, 0, True, "rivals"),
+    (True, False, False, 0, True, "outside_coverage"),
+    (True, True, False, 0, False, "no_echo"),
+    (True, False, True, 1, True, "misfit"),
+    (False, True, False, 2, False, "unexplained"),    # lost wins over everything
+])
+def test_status_reason_says_which_rule_gave_the_status(
+        converged: bool, rivals: bool, covered: bool, misfits: int, heard: bool,
+        reason: str) -> None:
+    assert status_reason(converged, rivals, covered, misfits, 2, heard) == reason
+    status = block_status(converged and not rivals, covered, misfits, 2, heard)
+    assert (status == "converged") == (reason == "")
+    assert (status == "lost") == (reason == "unexplained")
+    assert reason in STATUS_REASONS
+
+
+def test_every_block_has_a_reason_exactly_when_not_converged(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
+    """Over a global start (confirming first) and a tracked run kidnapped: ``reason`` is
+    one of STATUS_REASONS, empty exactly on ``converged`` blocks, ``unexplained`` exactly
+    on ``lost`` ones, and a global start's first converged-looking blocks say
+    ``confirming``."""
+    truth, hms = track
+    pf = ParticleFilter(tables, CONFIG, np.random.default_rng(5))
+    ests = [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)]
+    pf2, before = _tracked(tables, track, 0)
+    _, k_hms = kidnap
+    ests += before + [pf2.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
+    for e in ests:
+        assert e.reason in STATUS_REASONS
+        assert (e.status == "converged") == (e.reason == ""), (e.status, e.reason)
+        assert (e.status == "lost") == (e.reason == "unexplained"), (e.status, e.reason)
+    assert "confirming" in [e.reason for e in ests[: len(hms)]]
+    assert {"misfit", "unexplained"} & {e.reason for e in ests[len(hms):]}
+
+
 def test_block_fit_is_the_mean_of_explained_and_heard(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]]) -> None:
     truth, hms = track
@@ -580,19 +622,23 @@ def test_a_global_start_on_an_open_map_is_never_converged(
     open_map = dataclasses.replace(tables, complete=False, end_sigma=end_sigma)
     closed = dataclasses.replace(open_map, end_sigma=np.full((ROOM.shape[0], 2), 0.02))
     assert open_map.open_ends == 1 and closed.open_ends == 0 and tables.open_ends == 0
-    status = {}
+    status, reasons = {}, {}
     for name, tab, rule in (("open", open_map, "uncertain"), ("confirm", open_map, "confirm"),
                             ("closed", closed, "uncertain"), ("ideal", tables, "uncertain")):
         cfg = dataclasses.replace(CONFIG, confirm_blocks=3, open_map_global=rule)
         pf = ParticleFilter(tab, cfg, np.random.default_rng(5))
         ests = [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)]
         status[name] = [e.status for e in ests]
+        reasons[name] = [e.reason for e in ests]
         assert _error_m(ests[-1], truth[-1]) < 0.1, name
         if name == "open":                  # the checkpoint keeps the global start
             again = ParticleFilter.from_state_dict(pf.state_dict(), tab)
             assert again.global_start and again.confirmed
             assert again.step(hms[-1], *_odometry(len(hms) - 1)).status != "converged"
     assert "converged" not in status["open"]
+    # status only: where the same start on the same map is converged, the reason says why not
+    conv = [k for k, s in enumerate(status["confirm"]) if s == "converged"]
+    assert [reasons["open"][k] for k in conv] == ["open_map"] * len(conv)
     for name in ("confirm", "closed", "ideal"):
         assert "converged" in status[name], name
     cfg = dataclasses.replace(CONFIG, open_map_global="uncertain")
