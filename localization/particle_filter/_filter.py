@@ -609,6 +609,7 @@ class ParticleFilter:
         at_estimate: Explanation | None = None
         twin_gap = self.twin_gap
         held = _rivals.advance(self.rivals, speed_m_s, yaw_rate_rad_s, dt_s)
+        doubt_only = not (anchored or cfg.rival_tie_particles)   # unanchored ties: status only
         if echo and meas is not None and meas.n_peaks:
             at_estimate = explanation(self.tables, meas, estimate.pose.reshape(1, 3))
             fit = fit_of(at_estimate)
@@ -636,15 +637,14 @@ class ParticleFilter:
                                     cfg.twin_margin_nats).shape[0]
             # ties only doubt (unless rival_tie_particles): particles go to rivals that
             # explained the recent blocks better by more than rival_doubt_nats
-            fed = (found if anchored or cfg.rival_tie_particles
-                   else _rivals.active(held, True, min(cfg.rival_doubt_nats,
-                                                       cfg.rival_margin_nats), 0.0))
+            fed = (_rivals.active(held, True, min(cfg.rival_doubt_nats,
+                                                  cfg.rival_margin_nats), 0.0)
+                   if doubt_only else found)
             # data-driven rivals get particles only when the filter may re-localize
             alive = np.vstack([rivals, fed]) if cfg.relocalize else rivals
             # ties that only doubt leave the filter's own logic (confirmation, holds,
             # refinement) alone: they make the status uncertain at the end (``doubts``)
-            rivals = np.vstack([rivals, found if anchored or cfg.rival_tie_particles
-                                else fed])
+            rivals = np.vstack([rivals, fed])
         covered = bool(self.tables.covered(estimate.pose[None, :2])[0])
         heard_any = meas is None or meas.n_peaks > 0 or not echo
         status = block_status(estimate.converged and rivals.shape[0] == 0, covered, misfits,
@@ -720,7 +720,7 @@ class ParticleFilter:
             # a held jump the blocks do not prefer: particles go back where the odometry says
             alive = np.vstack([alive, back])
         # rivals that only put the status in doubt do not move the particles
-        moved = rivals.shape[0] if cfg.rival_tie_particles or anchored else alive.shape[0]
+        moved = alive.shape[0] if doubt_only else rivals.shape[0]
         if meas is not None and (reseed or moved or low_ess or back.shape[0]):
             n_out = kld_count(poses, cfg) if cfg.kld else cfg.n_particles
             poses, log_w = resample(poses, log_w, self.rng, n_out)
