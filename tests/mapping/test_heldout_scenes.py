@@ -35,6 +35,7 @@ FRESH14I = ("lounge", "arcade", "library")  # written at the start of session 31
 FRESH14J = ("rotunda", "foundry", "cellar")  # written at the start of session 32: "fresh14j"
 FRESH14K = ("parlour", "bakery", "boathouse")  # written at the start of session 33: "fresh14k"
 FRESH14L = ("pantry", "arcadia", "scullery")  # written at the start of session 34: "fresh14l"
+FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session 35: "fresh14m"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -100,6 +101,10 @@ INTERIOR = {
     "pantry": [(0.0, 0.0), (6.0, 0.0), (6.2, 6.3), (0.0, 6.3)],
     "arcadia": [(0.0, 0.0), (12.0, 0.0), (12.0, 4.5), (0.0, 4.5)],
     "scullery": [(0.0, 1.4), (3.6, 0.0), (7.8, 0.6), (8.6, 4.2), (5.4, 7.0), (0.8, 6.4)],
+    "granary": [(0.0, 0.0), (8.0, 0.0), (8.5, 5.0), (6.6, 5.0), (6.6, 5.35), (5.6, 5.35),
+                (5.6, 5.0), (0.5, 5.0)],
+    "chancel": [(0.6, 0.4), (9.4, 0.0), (9.0, 4.0), (3.2, 4.6), (4.0, 7.4), (0.0, 7.6)],
+    "orangery": [(0.0, 0.0), (10.0, 0.0), (9.2, 6.4), (0.0, 6.4)],
 }
 
 
@@ -139,7 +144,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14F) <= set(SCENES) and set(FRESH14G) <= set(SCENES)
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
-    assert set(FRESH14L) <= set(SCENES)
+    assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -154,7 +159,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14i" if spec.scene in FRESH14I
                     else "fresh14j" if spec.scene in FRESH14J
                     else "fresh14k" if spec.scene in FRESH14K
-                    else "fresh14l" if spec.scene in FRESH14L else "held-out")
+                    else "fresh14l" if spec.scene in FRESH14L
+                    else "fresh14m" if spec.scene in FRESH14M else "held-out")
         assert spec.group == expected
 
 
@@ -1039,6 +1045,194 @@ def test_scullery_has_no_right_angle_and_a_partition_hiding_a_nook() -> None:
     assert _headings_apart_deg("scullery-line", "scullery-curve") > 60.0
 
 
+def test_the_fresh14m_paths_are_7_to_10_m_long() -> None:
+    names = [n for scene in FRESH14M for n in heldout_path_names(scene)]
+    assert len(names) == 9 and all(heldout_path(n).group == "fresh14m" for n in names)
+    for name in names:
+        assert 7.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
+
+
+def test_granary_is_its_own_half_turn_but_for_a_small_curtained_recess() -> None:
+    granary = heldout_scene("granary")
+    walls = {w.name: w for w in granary.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "recess back": 0.55}                       # a curtain across the doorway
+    outline, interior = _outline("granary", 8)
+    lean = np.degrees(np.arctan2(0.5, 5.0))       # the side walls lean 0.5 m east over 5.0 m
+    assert np.allclose(interior, [90 - lean, 90 + lean, 90 - lean, 270, 90, 90, 270, 90 + lean])
+    assert np.isclose(lean, 5.71, atol=0.005)      # no right angle in the parallelogram
+    assert (walls["south"].length_m, walls["north east"].length_m + walls["recess back"].length_m
+            + walls["north west"].length_m) == (8.0, 8.0)
+    assert np.isclose(walls["west"].length_m, np.hypot(0.5, 5.0))
+    # the recess: 1.0 m wide, 0.35 m deep, in the north wall east of its middle (x = 4.5)
+    assert walls["recess back"].length_m == 1.0
+    assert np.isclose(walls["recess east"].length_m, 0.35)
+    assert np.isclose(walls["recess west"].length_m, 0.35)
+    assert np.isclose((walls["recess back"].start[0] + walls["recess back"].end[0]) / 2.0, 6.1)
+    segments = granary.segments()
+    is_recess = np.array([n.startswith("recess") for n in names])
+    is_bin = np.array([n.startswith("bin") for n in names])
+    # turned half a turn about its middle the room lies on itself but for the recess, which
+    # lands 0.35 m beyond the south wall (and the south wall's image leaves the recess open)
+    centre = outline[[0, 1, 2, 7]].mean(axis=0)
+    assert np.allclose(centre, (4.25, 2.5))
+    on_walls = np.concatenate([np.linspace(a, b, 201) for a, b in segments])
+    source = np.repeat(np.arange(len(segments)), 201)
+    moved = distance_to_walls(2.0 * centre - on_walls, segments)
+    assert np.isclose(moved.max(), 0.35)
+    off = moved > 1e-9
+    south = names.index("south")
+    assert np.all(is_recess[source[off]] | (source[off] == south))
+    on_south = on_walls[off & (source == south)]
+    assert on_south[:, 0].min() > 1.9 - 1e-9 and on_south[:, 0].max() < 2.9 + 1e-9
+    assert np.all(moved[~is_recess[source] & (source != south)] < 1e-9)
+    # mirrored about either axis through the middle it is far off: the half turn is the only
+    # near-symmetry
+    for flip in ([-1.0, 1.0], [1.0, -1.0]):
+        mirrored = (on_walls - centre) * flip + centre
+        assert distance_to_walls(mirrored, segments).max() > 1.3
+    # the bins: two closed rigid 0.5 m x 1.2 m blocks, each the other's half turn, free-standing
+    bins = {label: np.array([segments[k] for k, n in enumerate(names)
+                             if n.startswith(f"bin {label} ")]) for label in "AB"}
+    for block in bins.values():
+        assert len(block) == 4 and np.allclose(block[:, 1], np.roll(block[:, 0], -1, axis=0))
+        assert np.allclose(np.linalg.norm(block[:, 1] - block[:, 0], axis=1), [0.5, 1.2] * 2)
+        assert np.isclose(distance_to_walls(block[:, 0], segments[~is_bin]).min(), 1.1)
+    assert distance_to_walls(2.0 * centre - bins["A"][:, 0], bins["B"]).max() < 1e-9
+    assert all(walls[n].reflection is None for n in names if n.startswith("bin"))
+    # the mapped curve: the east part only, past the recess; the strip between bin A and the
+    # west wall, x = 1.35, y 3.0-3.7, is out of its sight (control: without the bins it is in
+    # sight); granary-west drives down the strip, more than 0.8 m of it out of the curve's sight
+    curve = _positions("granary-curve")
+    assert curve[:, 0].min() > 3.55
+    assert np.linalg.norm(curve - [6.1, 5.0], axis=1).min() < 0.9
+    strip = np.column_stack([np.full(15, 1.35), np.linspace(3.0, 3.7, 15)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_bin]).all()
+    west = _positions("granary-west")
+    assert west[:, 0].max() < 3.65 and distance_to_walls(west, bins["A"]).min() < 0.6
+    assert _hidden_length_m("granary-west", curve, segments) > 0.8
+    assert _hidden_length_m("granary-west", curve, segments[~is_bin]) == 0.0
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(west, curve_segments).max() > 2.5
+    # granary-line: between the bins, all of it in the curve's sight, at least 50 deg from every
+    # heading of the curve
+    line = _positions("granary-line", 300)
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("granary-line", "granary-curve") > 50.0
+    for block in bins.values():
+        assert distance_to_walls(line, block).min() < 1.1
+
+
+def test_chancel_is_an_l_with_no_right_angle_whose_arm_the_mapped_curve_never_sees() -> None:
+    chancel = heldout_scene("chancel")
+    walls = {w.name: w for w in chancel.walls}
+    names = list(walls)
+    assert names == ["south", "east", "nave north", "arm east", "arm north", "west"]
+    assert all(w.reflection is None for w in chancel.walls)
+    outline, interior = _outline("chancel", 6)
+    reflex = interior > 180.0
+    assert np.sum(reflex) == 1 and np.allclose(outline[reflex], [(3.2, 4.6)])  # the arm's mouth
+    assert np.isclose(interior[reflex][0], 280.04, atol=0.01)
+    assert np.all(np.abs(interior[~reflex] - 90.0) > 7.3)  # no right angle anywhere
+    assert np.all(np.abs(interior[reflex] - 270.0) > 7.3)
+    assert np.isclose(interior[~reflex].min(), 76.92, atol=0.01)
+    assert np.isclose(interior[~reflex].max(), 101.62, atol=0.01)
+    x, y = outline[:, 0], outline[:, 1]
+    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    assert np.isclose(area, 46.78)
+    lengths = np.array([w.length_m for w in chancel.walls])
+    assert np.allclose([lengths.min(), lengths.max()], [2.912, 8.809], atol=1e-3)
+    # the arm's east wall leans 16 deg east of north: the arm widens away from the nave
+    assert np.isclose(90.0 - _directions_deg("chancel")[names.index("arm east")], 15.95, atol=0.01)
+    segments = chancel.segments()
+    arm_east = segments[names.index("arm east")]
+    along = (arm_east[1] - arm_east[0]) / np.linalg.norm(arm_east[1] - arm_east[0])
+    inward = np.array([-along[1], along[0]])       # off the arm's east wall, into the arm
+    # the mapped curve: the nave's east part only, never in the arm; a line 0.55 m off the arm's
+    # east wall, from 0.9 to 2.2 m up it, is out of its sight (control: without the nave's north
+    # wall and the arm's east wall it is in sight)
+    curve = _positions("chancel-curve")
+    assert curve[:, 0].min() > 4.5 and curve[:, 1].max() < 3.75
+    strip = arm_east[0] + np.linspace(0.9, 2.2, 14)[:, None] * along + 0.55 * inward
+    assert distance_to_walls(strip, segments).min() > 0.5
+    assert not _seen(strip, curve, segments).any()
+    kept = np.array([segments[k] for k, n in enumerate(names)
+                     if n not in ("nave north", "arm east")])
+    assert _seen(strip, curve, kept).all()
+    # chancel-arm: up the arm and back down along its east wall; its last 1.5 m out of sight
+    drive = heldout_path("chancel-arm").trajectory()
+    arm = _positions("chancel-arm")
+    assert arm[:, 1].max() > 6.75 and arm[-1, 1] > 5.0
+    start = drive.duration_s * (1.0 - 1.5 / drive.length_m)
+    hidden = drive.position(np.linspace(start, drive.duration_s, 60))
+    assert not _seen(hidden, curve, segments).any()
+    assert _seen(hidden, curve, kept).all()
+    assert _seen(arm[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(arm, curve_segments).max() > 4.5
+    # chancel-line: an inverted V over the nave, all of it in the curve's sight, at least 50 deg
+    # from every heading of the curve
+    line = _positions("chancel-line", 300)
+    assert line[:, 1].max() < 4.0 and _seen(line, curve, segments).all()
+    assert _headings_apart_deg("chancel-line", "chancel-curve") > 50.0
+
+
+def test_orangery_is_open_over_part_of_a_wall_and_has_a_free_standing_planter() -> None:
+    orangery = heldout_scene("orangery")
+    walls = {w.name: w for w in orangery.walls}
+    names = list(walls)
+    outline, interior = _outline("orangery", 4)  # closed across the opening
+    lean = np.degrees(np.arctan2(0.8, 6.4))       # the east wall leans in 0.8 m over 6.4 m
+    assert np.allclose(interior, [90.0, 90.0 - lean, 90.0 + lean, 90.0])
+    x, y = outline[:, 0], outline[:, 1]
+    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    assert 40.0 < area < 70.0 and np.isclose(area, 61.44)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east": 0.8}                               # glazed
+    segments = orangery.segments()
+    is_outer = np.array([not n.startswith("planter") for n in names])
+    assert is_outer.sum() == 5
+    # the opening: the south wall missing from x = 3.4 to 6.6, its stubs' free ends there;
+    # every wall lies on the room's side of the south wall's line (nothing beyond) and the
+    # opening's middle is 1.6 m from every wall
+    opening = np.array([walls["south west"].end, walls["south east"].start], dtype=np.float64)
+    assert np.allclose(opening, [(3.4, 0.0), (6.6, 0.0)])
+    assert np.allclose([walls["south west"].length_m, walls["south east"].length_m], 3.4)
+    assert np.all(segments[..., 1] >= 0.0)
+    assert np.isclose(distance_to_walls(opening.mean(axis=0)[None], segments)[0], 1.6)
+    # the planter: a closed rigid equilateral triangle, sides 1.7 m, free-standing
+    planter = segments[~is_outer]
+    assert len(planter) == 3 and np.allclose(planter[:, 1], np.roll(planter[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(planter[:, 1] - planter[:, 0], axis=1), 1.7, atol=1e-3)
+    centre = planter[:, 0].mean(axis=0)
+    assert np.allclose(centre, (7.3, 3.9), atol=1e-4)
+    assert np.isclose(distance_to_walls(planter[:, 0], segments[is_outer]).min(), 1.45, atol=0.01)
+    assert distance_to_walls(planter[:, 0], opening[None]).min() > 3.0
+    # the mapped curve: the west half only, away from the planter; orangery-open goes where it
+    # never does: between the planter and the glazed wall (0.9 m of it behind the planter, out
+    # of the curve's sight; control: without the planter all in sight) and on to 0.6 m from
+    # the opening
+    curve = _positions("orangery-curve")
+    assert curve[:, 0].max() < 5.01 and distance_to_walls(curve, planter).min() > 1.9
+    open_side = _positions("orangery-open")
+    assert np.isclose(distance_to_walls(open_side[-1:], opening[None])[0], 0.6)
+    assert distance_to_walls(open_side, planter).min() < 0.6
+    assert open_side[:, 0].max() > centre[0] + 1.0
+    assert _hidden_length_m("orangery-open", curve, segments) > 0.85
+    assert _hidden_length_m("orangery-open", curve, segments[is_outer]) == 0.0
+    assert _seen(open_side[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(open_side, curve_segments).max() > 4.0
+    # orangery-line: an inverted V past the planter, all of it in the curve's sight, at least
+    # 50 deg from every heading of the curve
+    line = _positions("orangery-line", 300)
+    assert distance_to_walls(line, planter).min() < 0.7
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("orangery-line", "orangery-curve") > 50.0
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1063,7 +1257,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14i": FRESH14B_CLEARANCE_M,
                  "fresh14j": FRESH14B_CLEARANCE_M,
                  "fresh14k": FRESH14B_CLEARANCE_M,
-                 "fresh14l": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14l": FRESH14B_CLEARANCE_M,
+                 "fresh14m": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
