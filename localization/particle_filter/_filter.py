@@ -818,7 +818,10 @@ class ParticleFilter:
         if meas is None or not meas.n_peaks:
             return track, self.scatter, True
         sigma_r, sigma_c = refine.noise(self.tables, meas, self.scatter, rc)
-        out = refine.update(self.tables, meas, track[0], track[1], sigma_r, sigma_c, rc)
+        scale_sd = (refine.speed_scale_sd(speed_m_s, yaw_rate_rad_s, dt_s, self.config.motion)
+                    if rc.speed_scale else 0.0)
+        out = refine.update(self.tables, meas, track[0], track[1], sigma_r, sigma_c, rc,
+                            scale_sd)
         if not out.ok:
             return track, self.scatter, False
         return ((out.mean, out.cov),

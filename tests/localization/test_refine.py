@@ -111,6 +111,42 @@ def test_update_is_consistent_on_exact_echoes_with_known_noise(tables: SensorTab
     assert float(np.mean(post_err)) < 0.2 * float(np.mean(prior_err))
 
 
+def test_a_common_speed_error_is_estimated_and_kept_in_the_covariance(
+        tables: SensorTables) -> None:
+    """The heat map turns Doppler into cosines with the odometry speed, so a speed off by a
+    factor (1 + s) scales every cosine of the block by it. Blocks built that way (s drawn
+    with sd 5 %, the exact echoes plus small independent noise): with ``scale_sd`` the
+    posterior error is chi-square with 3 degrees of freedom again (mean 3); treating the
+    speed as exact the covariance is overconfident (mean far above 3)."""
+    rng = np.random.default_rng(5)
+    P0 = np.diag([0.01**2, 0.01**2, math.radians(1.0) ** 2])
+    sr, sc, s_sd = 0.001, 0.01, 0.05
+    with_scale, without = [], []
+    for _ in range(150):
+        prior = rng.multivariate_normal(TRUTH, P0)
+        meas = _exact(tables, TRUTH, sr, sc, rng)
+        assert meas.peaks is not None
+        s = rng.normal(0.0, s_sd)
+        meas = dataclasses.replace(meas, peaks=meas.peaks._replace(c=meas.peaks.c * (1.0 + s)))
+        a = refine.update(tables, meas, prior, P0, sr, sc, CFG, s_sd)
+        b = refine.update(tables, meas, prior, P0, sr, sc, CFG, 0.0)
+        if a.ok:
+            with_scale.append(nees(a.mean, a.cov, TRUTH))
+        if b.ok:
+            without.append(nees(b.mean, b.cov, TRUTH))
+    assert len(with_scale) >= 140
+    assert 2.4 <= float(np.mean(with_scale)) <= 3.7
+    assert float(np.mean(without)) > 6.0
+
+
+def test_speed_scale_sd_is_the_motion_models_relative_translation_sigma() -> None:
+    noise = MotionNoise()
+    _, s_trans, _ = motion.motion_std(0.0, 0.15 * 1.023, 0.0, noise)
+    assert refine.speed_scale_sd(0.15, 0.0, 1.023, noise) == pytest.approx(
+        s_trans / (0.15 * 1.023))
+    assert refine.speed_scale_sd(0.0, 0.0, 1.023, noise) == 0.0
+
+
 def test_first_order_echo_jacobian_is_the_wall_normal(tables: SensorTables) -> None:
     """Range to a wall's specular point changes by -n . dp (n the wall's normal toward the
     robot): the south wall y = 0 gives d range / d y = +1, d range / d x = 0."""
