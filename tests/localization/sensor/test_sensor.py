@@ -15,6 +15,7 @@ from localization.sensor import (
     SensorConfig,
     SensorTables,
     build_tables,
+    free_space_mask,
     log_likelihood,
     polar_prediction,
     pose_log_likelihood,
@@ -25,7 +26,9 @@ from localization.sensor import (
     validate_block,
 )
 from localization.sensor._measurement import _bin_ranges as bin_ranges
+from mapping.coverage import coverage_mask
 from mapping.heatmap import HeatMap
+from mapping.wallmap import WallMap, rasterize_walls
 from tests.localization.helpers import ASYMMETRIC_ROOM, rasterize, synthetic_heatmap
 from tests.localization.sensor.naive import score_poses_numpy
 
@@ -215,3 +218,56 @@ def test_range_binning_is_the_mean_of_each_bin(seed: int) -> None:
         sel = (ranges_m >= r - half) & (ranges_m < r + half)
         want = H[:, sel].mean(axis=1) if sel.any() else np.zeros(5)
         np.testing.assert_allclose(got[:, k], want, rtol=1e-9, atol=1e-12)
+
+
+# ---- free space of a map built from runs -----------------------------------------------------
+def _built_like(walls: np.ndarray, path_xy: np.ndarray, radius_m: float = 6.0) -> WallMap:
+    """A wall map laid out as :func:`mapping.build.build_map` lays one out: the grid is the
+    mapping path's box grown by the back-projection radius, coverage is the path's line of
+    sight (:func:`mapping.coverage.coverage_mask`), and provenance names a run."""
+    res = 0.05
+    lo = path_xy.min(axis=0) - radius_m
+    n = np.ceil((path_xy.max(axis=0) + radius_m - lo) / res).astype(int) + 1
+    x = lo[0] + res * np.arange(n[0])
+    y = lo[1] + res * np.arange(n[1])
+    poses = np.column_stack([path_xy, np.zeros(len(path_xy))])
+    cov = coverage_mask(poses, x, y, 8.0, walls)
+    return WallMap(G=rasterize_walls(walls, x, y).astype(np.float64),
+                   origin_m=(float(lo[0]), float(lo[1])), resolution_m=res,
+                   method="walls", params={"grid": {"radius_m": radius_m}},
+                   provenance={"runs": [{"name": "east"}]}, walls_m=walls, coverage=cov)
+
+
+def _free_at(wm: WallMap, mask: np.ndarray, x: float, y: float) -> bool:
+    ix = int(round((x - wm.origin_m[0]) / wm.resolution_m))
+    iy = int(round((y - wm.origin_m[1]) / wm.resolution_m))
+    return bool(mask[iy, ix])
+
+
+def test_free_space_of_a_built_map_is_what_the_runs_saw_inside_their_walls() -> None:
+    """A 10 m x 6 m room mapped from a path in its east part, with a partition hiding the
+    south-west corner. The robot may stand in the west part (seen, inside the walls, 4 m from
+    the path's box): free there, where the path's box plus 1 m (the raster rule, and the rule
+    of the same map without runs) says it is not; behind the partition (not seen) and
+    outside the room it is never free."""
+    room = np.array([[0, 0, 10, 0], [10, 0, 10, 6], [10, 6, 0, 6], [0, 6, 0, 0],
+                     [2.5, 0, 2.5, 2.0]], dtype=np.float64)        # the partition: x = 2.5
+    path = np.column_stack([np.linspace(7.0, 9.0, 30), np.full(30, 3.0)])
+    wm = _built_like(room, path)
+    mask = free_space_mask(wm)
+    assert _free_at(wm, mask, 4.0, 4.5)                 # west, seen: 3 m beyond the box + 1 m
+    assert _free_at(wm, mask, 8.0, 3.0)                 # on the path
+    assert not _free_at(wm, mask, 1.2, 0.8)             # behind the partition: never seen
+    assert not _free_at(wm, mask, 11.0, 3.0)            # outside the room
+    assert not _free_at(wm, mask, 5.0, 0.05)            # on a wall (clearance)
+    old = free_space_mask(dataclasses.replace(wm, provenance={}))
+    assert not _free_at(wm, old, 4.0, 4.5) and _free_at(wm, old, 8.0, 3.0)
+
+
+def test_free_space_of_a_built_map_with_collinear_walls_keeps_the_path_box() -> None:
+    """Walls that span no area (one corridor side heard) give no hull: the path's box rule."""
+    walls = np.array([[0, 0, 10, 0]], dtype=np.float64)
+    path = np.column_stack([np.linspace(3.0, 7.0, 30), np.full(30, 1.0)])
+    wm = _built_like(walls, path)
+    mask = free_space_mask(wm)
+    assert _free_at(wm, mask, 5.0, 1.0) and not _free_at(wm, mask, 5.0, 4.5)
