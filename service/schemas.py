@@ -172,8 +172,9 @@ class SessionCreate(_Strict):
     ceiling_height_m: float | None = Field(
         None, gt=0, le=50, description="the ceiling's height (m), with sonar_height_m")
     open_map: Literal["uncertain", "confirm"] = Field(
-        "uncertain", description="a global start on a map built from runs with an open wall "
-        "end (free space the map knows nothing of): never reported converged ('uncertain'), "
+        "uncertain", description="a global start, or a filter that lost its track and found a "
+        "place again, on a map built from runs with an open wall end (free space the map "
+        "knows nothing of): never reported converged ('uncertain'), "
         "or as on a closed map ('confirm': the robot is known to be in the mapped part)")
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
@@ -279,8 +280,8 @@ class SessionInfo(BaseModel):
                                          "2-D room)")
     ceiling_height_m: float | None = Field(None, description="ceiling height asked for")
     open_map: Literal["uncertain", "confirm"] = Field(
-        "uncertain", description="what a global start on an open map reports (see "
-        "POST /sessions)")
+        "uncertain", description="what a global start or a re-localization on an open map "
+        "reports (see POST /sessions)")
     created_at: float
     last_active_at: float
     expires_in_s: float

@@ -700,9 +700,11 @@ class ParticleFilter:
             # needs (or, unanchored, as well): the estimate stands, the status says it is in
             # doubt
             status, reason = "uncertain", "rival_doubt"
-        if status == "converged" and self.global_start and open_world(self.tables, cfg):
-            # a global start on an open map: the robot may stand where the map knows
-            # nothing; the filter goes on as confirmed, the status says so
+        relocalized = self.global_start or (cfg.open_map_relocalized and not anchored)
+        if status == "converged" and relocalized and open_world(self.tables, cfg):
+            # a global start on an open map, or a tracked filter that lost its track and
+            # found a place again: the robot may stand where the map knows nothing; the
+            # filter goes on as confirmed, the status says so
             status, reason = "uncertain", "open_map"
         estimate = dataclasses.replace(estimate, status=status, fit=fit, covered=covered,
                                        reason=reason)

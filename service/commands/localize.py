@@ -40,8 +40,9 @@ def add_localize(sub: argparse._SubParsersAction) -> None:
                    "range (against G, the baseline); auto = echo when the map has walls")
     p.add_argument("--seed", type=int, default=0, help="random seed (pf)")
     p.add_argument("--open-map", choices=("uncertain", "confirm"), default="uncertain",
-                   help="a global start on a map built from runs with an open wall end "
-                   "(free space the map knows nothing of): never reported converged "
+                   help="a global start (or a filter that lost its track and found a place "
+                   "again) on a map built from runs with an open wall end (free space the "
+                   "map knows nothing of): never reported converged "
                    "('uncertain'), or as on a closed map ('confirm': the robot is known to "
                    "be in the mapped part)")
     p.add_argument("--beta", type=float, default=None,

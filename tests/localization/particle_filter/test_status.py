@@ -646,6 +646,31 @@ def test_a_global_start_on_an_open_map_is_never_converged(
     assert [pf.step(hm, *_odometry(k)) for k, hm in enumerate(hms)][-1].status == "converged"
 
 
+def test_a_kidnap_recovered_on_an_open_map_is_not_reported_converged(
+        tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
+        kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
+    """``FilterConfig.open_map_relocalized``: a tracked filter that jumps (here a kidnap)
+    has re-localized as a global start does; on a map built from runs with an open wall end
+    it is then never ``converged`` (reason ``open_map``), though it is back at the truth;
+    with the rule off the same recovery is ``converged``, as it is on a closed map. Before
+    the kidnap the tracked start is ``converged`` either way."""
+    end_sigma = np.full((ROOM.shape[0], 2), 0.02)
+    end_sigma[5, 1] = 1.0                           # the north stub's free end: open
+    open_map = dataclasses.replace(tables, complete=False, end_sigma=end_sigma)
+    k_truth, k_hms = kidnap
+    out = {}
+    for rule in (True, False):
+        cfg = dataclasses.replace(CONFIG, jump_dwell_blocks=3, open_map_relocalized=rule)
+        pf, ests = _tracked(open_map, track, 0, cfg)
+        assert ests[-1].status == "converged"
+        after = [pf.step(hm, *KIDNAP_ODO[k], DT) for k, hm in enumerate(k_hms)]
+        assert _error_m(after[-1], k_truth[-1]) < 0.2
+        out[rule] = after
+    assert all(e.status != "converged" for e in out[True])
+    assert out[True][-1].reason == "open_map"
+    assert out[False][-1].status == "converged"
+
+
 def test_without_relocalization_a_kidnap_stays_lost(
         tables: SensorTables, track: tuple[FloatArray, list[HeatMap]],
         kidnap: tuple[FloatArray, list[HeatMap]]) -> None:
