@@ -102,7 +102,8 @@ class RefineConfig:
         this Mahalanobis distance (under the sum of their covariances).
     speed_scale : bool
         Estimate the block's odometry speed error with the pose (:func:`update`'s
-        ``speed_scale_sd``, from the motion model); False treats the odometry speed as exact.
+        ``scale_sd``, from the motion model by :func:`speed_scale_sd`); False treats the
+        odometry speed as exact.
     """
 
     enabled: bool = True
