@@ -571,11 +571,16 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
     return np.asarray(seen[iy, ix])
 
 
-def test_the_fresh14j_paths_are_8_to_10_m_long() -> None:
-    names = [n for scene in FRESH14J for n in heldout_path_names(scene)]
-    assert len(names) == 9 and all(heldout_path(n).group == "fresh14j" for n in names)
+@pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
+    ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
+    ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0)])
+def test_a_fresh_groups_nine_paths_have_their_length(
+        group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
+    """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
+    names = [n for scene in scenes for n in heldout_path_names(scene)]
+    assert len(names) == 9 and all(heldout_path(n).group == group for n in names)
     for name in names:
-        assert 8.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
+        assert shortest_m <= heldout_path(name).trajectory().length_m <= 10.0, name
 
 
 def test_rotunda_is_a_regular_octagon_whose_only_asymmetry_is_an_off_centre_doorway() -> None:
@@ -701,13 +706,6 @@ def test_cellar_has_no_right_angle_an_obtuse_reflex_corner_a_short_wall_and_mixe
     assert bastion[-1, 1] > tip[1]
     assert np.linalg.norm(bastion - tip, axis=1).min() < 1.1
     assert abs(_winding_deg("cellar-bastion", tip)) > 120.0
-
-
-def test_the_fresh14k_paths_are_8_to_10_m_long() -> None:
-    names = [n for scene in FRESH14K for n in heldout_path_names(scene)]
-    assert len(names) == 9 and all(heldout_path(n).group == "fresh14k" for n in names)
-    for name in names:
-        assert 8.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
 
 
 def _headings_apart_deg(name: str, other: str) -> float:
@@ -867,13 +865,6 @@ def test_boathouse_is_open_on_one_side_has_a_round_column_no_right_angle_and_mix
     line = _positions("boathouse-line", 300)
     assert np.linalg.norm(line - ideal.mean(axis=0), axis=1).min() < 1.5
     assert _headings_apart_deg("boathouse-line", "boathouse-curve") > 100.0
-
-
-def test_the_fresh14l_paths_are_7_to_10_m_long() -> None:
-    names = [n for scene in FRESH14L for n in heldout_path_names(scene)]
-    assert len(names) == 9 and all(heldout_path(n).group == "fresh14l" for n in names)
-    for name in names:
-        assert 7.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
 
 
 def _hidden_length_m(name: str, seen_from: np.ndarray, walls: np.ndarray) -> float:
@@ -1043,13 +1034,6 @@ def test_scullery_has_no_right_angle_and_a_partition_hiding_a_nook() -> None:
     # heading of the curve
     assert _seen(_positions("scullery-line", 300), curve, segments).all()
     assert _headings_apart_deg("scullery-line", "scullery-curve") > 60.0
-
-
-def test_the_fresh14m_paths_are_7_to_10_m_long() -> None:
-    names = [n for scene in FRESH14M for n in heldout_path_names(scene)]
-    assert len(names) == 9 and all(heldout_path(n).group == "fresh14m" for n in names)
-    for name in names:
-        assert 7.0 <= heldout_path(name).trajectory().length_m <= 10.0, name
 
 
 def test_granary_is_its_own_half_turn_but_for_a_small_curtained_recess() -> None:
