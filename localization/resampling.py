@@ -12,11 +12,22 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 from localization import _kernels as _k
 
 FloatArray = NDArray[np.float64]
+
+
+def log_sum_exp(log_w: FloatArray) -> float:
+    """``log(sum(exp(log_w)))`` of a 1-D array, shifted by its maximum so nothing overflows
+    (-inf when every entry is -inf; +inf or NaN in, the same out). The filter calls it a few
+    times per block on every particle: scipy's ``logsumexp`` gives the same value (to
+    round-off) at several times the cost of its argument checks on 2000 entries."""
+    a = np.asarray(log_w, dtype=np.float64)
+    m = float(np.max(a))
+    if not np.isfinite(m):
+        return m
+    return m + float(np.log(np.sum(np.exp(a - m))))
 
 
 def normalize_log_weights(log_w: FloatArray) -> tuple[FloatArray, float]:
@@ -32,7 +43,7 @@ def normalize_log_weights(log_w: FloatArray) -> tuple[FloatArray, float]:
         raise ValueError(f"log_w must be a non-empty 1-D array, got shape {log_w.shape}")
     if np.isnan(log_w).any() or np.isposinf(log_w).any():
         raise ValueError("log_w contains NaN or +inf")
-    lse = float(logsumexp(log_w))
+    lse = log_sum_exp(log_w)
     if not np.isfinite(lse):
         raise ValueError("log_w is all -inf: every particle has zero weight")
     return log_w - lse, lse

@@ -40,7 +40,6 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 from scipy.stats import norm
 
 from localization import motion, refine, resampling
@@ -123,7 +122,7 @@ def weigh(log_w: FloatArray, poses: FloatArray, tables: SensorTables,
     new, _ = resampling.normalize_log_weights(log_w + scale * ll)
     if not finite.any():
         return new, -np.inf, scale
-    prior = np.exp(log_w[finite] - float(logsumexp(log_w[finite])))
+    prior = np.exp(log_w[finite] - resampling.log_sum_exp(log_w[finite]))
     stat = tables.config.beta * float(np.sum(prior * (rho[finite] - 1.0)))
     return new, stat, scale
 
@@ -149,9 +148,10 @@ def temper_to_ess(log_w: FloatArray, ll: FloatArray, min_ess: float,
     degenerate) the smallest scale (1e-6) is returned.
     """
     def ess(s: float) -> float:
+        # (sum w)^2 / sum w^2 of the unnormalized weights, shifted by their maximum
         a = log_w + s * ll
-        a = a - float(logsumexp(a))
-        return float(1.0 / np.sum(np.exp(2.0 * a)))
+        e = np.exp(a - np.max(a))
+        return float(np.sum(e) ** 2 / np.sum(e * e))
 
     if not np.all(np.isfinite(ll)) or ess(1.0) >= min_ess:
         return 1.0

@@ -195,6 +195,19 @@ class _EchoTerms(NamedTuple):
 
 
 @numba.njit(**NUMBA_FLAGS)
+def _nz(x: float) -> float:
+    """``x`` as ``np.nan_to_num`` gives it: NaN 0, +-inf the largest finite float (the
+    padding of an echo batch is NaN; read in the kernel, no copy of the arrays)."""
+    if x != x:
+        return 0.0
+    if x == math.inf:
+        return 1.7976931348623157e308
+    if x == -math.inf:
+        return -1.7976931348623157e308
+    return x
+
+
+@numba.njit(**NUMBA_FLAGS)
 def _echo_kernel(
     count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
     pa: NDArray[np.float64], ps: NDArray[np.float64], pl: NDArray[np.float64],
@@ -234,32 +247,32 @@ def _echo_kernel(
         n_pred = count[i]
         a_max = 0.0
         for k in range(n_pred):
-            if t.r_min <= pr[i, k] <= t.r_max and pa[i, k] > a_max:
-                a_max = pa[i, k]
+            if t.r_min <= _nz(pr[i, k]) <= t.r_max and _nz(pa[i, k]) > a_max:
+                a_max = _nz(pa[i, k])
         for j in range(n_meas):
             best[j] = 0.0
             level[j] = 0.0
             alpha[j] = 1.0
         # geometry: every (peak, echo) pair once
         for k in range(n_pred):
-            r = pr[i, k]
+            r = _nz(pr[i, k])
             inside = t.r_min <= r <= t.r_max
-            s_k = math.sqrt(m.sig_r * m.sig_r + ps[i, k] * ps[i, k])
+            s_k = math.sqrt(m.sig_r * m.sig_r + _nz(ps[i, k]) * _nz(ps[i, k]))
             for j in range(n_meas):
                 kv = 0.0
                 if inside:
                     d = (m.r[j] - r) / s_k
                     e = 0.5 * d * d
                     if m.use_cos and e < 18.0:      # most pairs are already out on range
-                        dc = (m.c[j] - pc[i, k]) / m.sig_c
+                        dc = (m.c[j] - _nz(pc[i, k])) / m.sig_c
                         e += 0.5 * dc * dc
                     if e < 18.0:
                         kv = math.exp(-e)
                 kap[j, k] = kv
                 if kv > best[j]:
                     best[j] = kv
-                if pl[i, k] > 0.0:
-                    level[j] += kv * pl[i, k]
+                if _nz(pl[i, k]) > 0.0:
+                    level[j] += kv * _nz(pl[i, k])
         # levels: each peak against the echoes that make it, after the pose's gain
         if levels:
             g_sum = 0.0
@@ -279,7 +292,7 @@ def _echo_kernel(
         p_sum = 0.0
         heard = 0.0
         for k in range(n_pred):
-            r = pr[i, k]
+            r = _nz(pr[i, k])
             if r < t.r_min or r > t.r_max:
                 continue
             bk = 0.0
@@ -290,7 +303,7 @@ def _echo_kernel(
                     bk = kv
                 if alpha[j] * kv > bk_a:
                     bk_a = alpha[j] * kv
-            rel = pa[i, k] / a_max if a_max > 0.0 else 0.0
+            rel = _nz(pa[i, k]) / a_max if a_max > 0.0 else 0.0
             p = t.p_max * min(max((rel - t.rel_lo) / (t.rel_hi - t.rel_lo), 0.0), 1.0)
             ll += math.log(1.0 - p * (1.0 - bk_a))
             p_sum += p
@@ -309,18 +322,18 @@ def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np
                pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
                map_sigma: NDArray[np.float64] | None = None,
                amplitude: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-    """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0;
-    ``map_sigma`` None: no map uncertainty; ``amplitude`` None: ``pa`` is also the heard
-    echo's amplitude)."""
+    """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0 by the
+    kernel, as ``nan_to_num``; ``map_sigma`` None: no map uncertainty; ``amplitude`` None:
+    ``pa`` is also the heard echo's amplitude)."""
     out = np.empty((count.shape[0], 3), dtype=np.float64)
     ps = np.zeros_like(pr) if map_sigma is None else map_sigma
     pl = pa if amplitude is None else amplitude
     _echo_kernel(np.ascontiguousarray(count, dtype=np.int64),
-                 np.ascontiguousarray(np.nan_to_num(pr), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(pc), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(pa), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(ps), dtype=np.float64),
-                 np.ascontiguousarray(np.nan_to_num(pl), dtype=np.float64), m, t, out)
+                 np.ascontiguousarray(pr, dtype=np.float64),
+                 np.ascontiguousarray(pc, dtype=np.float64),
+                 np.ascontiguousarray(pa, dtype=np.float64),
+                 np.ascontiguousarray(ps, dtype=np.float64),
+                 np.ascontiguousarray(pl, dtype=np.float64), m, t, out)
     return out
 
 

@@ -9,9 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from scipy.special import logsumexp
 
 from localization.resampling import (
     effective_sample_size,
+    log_sum_exp,
     normalize_log_weights,
     systematic_resample,
     systematic_resample_u0,
@@ -92,3 +94,24 @@ def test_bad_weights_raise() -> None:
         systematic_resample(np.array([0.5, -0.1]), rng)
     with pytest.raises(ValueError, match="u0"):
         systematic_resample_u0(np.ones(3), 1.0, 3)
+
+
+@settings(max_examples=80, deadline=None)
+@given(arrays(np.float64, st.integers(1, 300),
+              elements=st.floats(-1e4, 1e4) | st.just(-math.inf)))
+def test_log_sum_exp_matches_scipy(a: np.ndarray) -> None:
+    """The filter's own log-sum-exp against scipy's (an independent implementation), with
+    spreads far beyond exp's range and -inf entries (zero weights)."""
+    want = float(logsumexp(a))
+    got = log_sum_exp(a)
+    if math.isinf(want):
+        assert got == want
+    else:
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+def test_log_sum_exp_edges() -> None:
+    """All -inf is -inf (no NaN from inf - inf); NaN or +inf propagate."""
+    assert log_sum_exp(np.full(4, -math.inf)) == -math.inf
+    assert log_sum_exp(np.array([0.0, math.inf])) == math.inf
+    assert math.isnan(log_sum_exp(np.array([0.0, math.nan])))
