@@ -51,9 +51,19 @@ Cost vs accuracy: particle counts 300 .. 10000 for ``echo-built`` and ``G-built`
 subset of runs: global success (mod symmetry), confidently-wrong rate, tracking RMSE, ms per
 update.
 
+Map support: per global start and kidnap (echo models), the share of the trial's blocks (a
+global start's first 9, a kidnap's window) where the map explains what the robot heard at its
+true pose (the fit at the truth >= the filter's ``fit_threshold``); a trial is *supported* at
+>= 0.8. The summary gives the success over supported trials beside the total: a built map
+that lacks the walls where the robot is cannot be localized on, and the filter should say so.
+
 Writes ``benchmarks/results/localization_echo.json`` and ``localization_echo.png`` (``--quick``
 writes into ``out/localization_echo/quick/`` so a smoke run never replaces the full result).
 Run: ``python -m benchmarks.localization_echo [--quick] [--seeds S] [--only SCENE ...]``.
+On two cores the full run takes about 1.5 h; split it: ``NUMBA_NUM_THREADS=1 ... --part 1/2``
+and ``... --part 2/2`` side by side, then ``... --resume`` alone, which merges the parts, times
+every run again alone (tracked run and first global start; the parts' timing is kept as
+``timing_in_part``) and runs the sweep.
 """
 
 from __future__ import annotations
@@ -85,7 +95,12 @@ from benchmarks._heldout import (
 )
 from benchmarks.wall_maps import MAX_PATH_M
 from localization.estimate import default_start_cov, nees, track_metrics
-from localization.particle_filter import FilterConfig, ParticleFilter, block_odometry
+from localization.particle_filter import (
+    FilterConfig,
+    ParticleFilter,
+    block_fit,
+    block_odometry,
+)
 from localization.sensor import (
     SensorConfig,
     SensorTables,
@@ -126,6 +141,7 @@ WITHIN_BLOCKS = 8                                  # global: converged by this b
 CW_M, CW_RAD = 0.30, math.radians(15.0)            # confidently wrong
 KIDNAP_AFTER, KIDNAP_WINDOW, KIDNAP_TOL_M, KIDNAP_JUMP_M = 8, 10, 0.20, 1.5
 SYM_ORDER, SYM_LEVEL, SYM_RANGE_M, SYM_COS = 2, 0.1, 0.02, 0.05
+SUPPORT_SHARE = 0.8                 # a trial the map supports: this share of its blocks fit
 SEARCH_EVERY, SEARCH_STEP_M, SEARCH_STEP_RAD, SEARCH_TOP = 3, 0.05, math.radians(3.0), 200
 SEARCH_CHUNK = 50_000
 VARIANTS: tuple[tuple[str, str, str], ...] = (   # name, sensor model, map
@@ -469,6 +485,34 @@ def _any_mode_within(means: FloatArray, truth: FloatArray, tol_m: float = TOL_M)
     return bool(np.any((pos <= tol_m) & (head <= TOL_RAD)))
 
 
+def truth_fits(tables: SensorTables, feed: Feed) -> FloatArray:
+    """The echo model's fit (``PoseEstimate.fit``) at the true pose of each block: how well
+    the map explains what the robot heard where it was (NaN: a silent block, one with no
+    peak, or a map scored by the G correlation, which has no fit)."""
+    out = np.full(feed.n, math.nan)
+    if tables.config.model != "echo":
+        return out
+    for k in range(feed.n):
+        if feed.hms[k] is None:
+            continue
+        m = prepare_measurement(feed.hms[k], tables.config)
+        if m.peaks is not None and m.n_peaks:
+            out[k] = block_fit(tables, m, feed.truth[k])
+    return out
+
+
+def map_support(fits: FloatArray) -> float | None:
+    """Share of the blocks with a fit whose fit at the truth reaches the filter's
+    ``fit_threshold`` (None: no block has a fit). A trial is *supported* when this is at
+    least ``SUPPORT_SHARE``: the map explains what the robot heard there, so a filter could
+    find it; below, the map lacks walls there (or has wrong ones) and an honest filter says
+    ``uncertain`` / ``lost`` instead."""
+    f = fits[np.isfinite(fits)]
+    if f.size == 0:
+        return None
+    return float(np.mean(f >= FilterConfig().fit_threshold))
+
+
 def global_trial(tables: SensorTables, feed: Feed, n: int, seed: int, images: Images
                  ) -> tuple[dict[str, Any], Trace]:
     pf = ParticleFilter(tables, FilterConfig(n_particles=n), np.random.default_rng(1000 + seed))
@@ -491,6 +535,7 @@ def global_trial(tables: SensorTables, feed: Feed, n: int, seed: int, images: Im
         "first_converged_status_block": first_conv,
         "status": status_counts(tr.status),
         "first_step_ms": 1e3 * float(tr.wall_s[0]),
+        "map_support": map_support(truth_fits(tables, feed.part(0, WITHIN_BLOCKS + 1))),
         "confidently_wrong": confidently_wrong(tr, images),
     }, tr
 
@@ -563,6 +608,7 @@ def kidnap_trial(tables: SensorTables, lr: LocRun, target: tuple[LocRun, int, fl
         "stayed_after_recovery": bool(rec is not None and np.all(after[rec - 1:] <= KIDNAP_TOL_M)),
         "blocks_until_not_converged": doubt,
         "status_after": status_counts(post),
+        "map_support": map_support(truth_fits(tables, feed.part(KIDNAP_AFTER, feed.n))),
         "confidently_wrong": confidently_wrong(tr, images),
     }, tr
 
@@ -577,6 +623,14 @@ def timing(traces: Sequence[Trace]) -> dict[str, Any]:
             "ms_p95": 1e3 * float(np.percentile(wall, 95)),
             "cpu_ms_median": 1e3 * float(np.median(cpu)),
             "cpu_ms_p95": 1e3 * float(np.percentile(cpu, 95))}
+
+
+def retime(tables: SensorTables, lr: LocRun, n: int, images: Images) -> dict[str, Any]:
+    """Time per update of ``lr`` alone in this process: its tracked run and its first global
+    start (the runs of ``--part`` processes shared the machine, one numba thread each)."""
+    _, tr = tracking_trial(tables, lr.feed, n, images)
+    _, gt = global_trial(tables, lr.feed, n, 0, images)
+    return timing([tr, gt]) | {"numba_threads": numba_threads(), "trials": "tracking, global 0"}
 
 
 def sum_cw(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -701,6 +755,8 @@ def summarize_variant(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
     gl = [g for e in ok for g in e["global"]]
     kd = [k for e in ok for k in e["kidnap"]]
     rec = [k["blocks_to_recover"] for k in kd if k["blocks_to_recover"] is not None]
+    gs = [g for g in gl if (g.get("map_support") or 0.0) >= SUPPORT_SHARE]
+    ks = [k for k in kd if (k.get("map_support") or 0.0) >= SUPPORT_SHARE]
     ms = [e["timing"]["ms_median"] for e in ok if e["timing"].get("updates")]
     cpu = [e["timing"]["cpu_ms_median"] for e in ok if e["timing"].get("updates")]
     return {
@@ -729,6 +785,13 @@ def summarize_variant(entries: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "kidnap_truth_among_modes": sum(k.get("blocks_to_truth_among_modes") is not None
                                         for k in kd),
         "kidnap_blocks_to_recover_mean": float(np.mean(rec)) if rec else math.nan,
+        # the trials whose truth the map explains (map_support >= SUPPORT_SHARE): what is
+        # left to the filter once the map's missing walls are set aside
+        "global_supported_trials": len(gs),
+        "global_success_mod_sym_supported": float(np.mean([g["success_mod_sym"] for g in gs]))
+        if gs else math.nan,
+        "kidnap_supported_trials": len(ks),
+        "kidnap_recovered_supported": sum(k["blocks_to_recover"] is not None for k in ks),
         "confidently_wrong": sum_cw([e["confidently_wrong"] for e in ok]),
         "update_ms_median_of_runs": float(np.median(ms)) if ms else math.nan,
         "update_cpu_ms_median_of_runs": float(np.median(cpu)) if cpu else math.nan,
@@ -856,13 +919,42 @@ def print_summary(summary: dict[str, Any], search_summary: dict[str, Any]) -> No
               f"{sv.get('kidnap_recovered_mod_sym', 0)}, truth among modes "
               f"{sv.get('kidnap_truth_among_modes', 0)}); confidently wrong "
               f"{cw['wrong']}/{cw['blocks']} (mod sym {cw['wrong_mod_sym']}); "
-              f"{sv['update_ms_median_of_runs']:.1f} ms/update")
+              f"{sv['update_ms_median_of_runs']:.1f} ms/update; where the map supports the "
+              f"truth: global {sv.get('global_success_mod_sym_supported', math.nan):.2f} "
+              f"(mod sym) of {sv.get('global_supported_trials', 0)}, kidnap "
+              f"{sv.get('kidnap_recovered_supported', 0)}/{sv.get('kidnap_supported_trials', 0)}")
     for name, sv in search_summary.items():
         print(f"one block {name}: {sv['ok']}/{sv['blocks']} (mod sym {sv['ok_mod_sym']}), "
               f"wrong where the truth scores higher: {sv['wrong_and_truth_scores_higher']}")
 
 
 # ---- main ----------------------------------------------------------------------------------
+def parse_part(text: str | None) -> tuple[int, int] | None:
+    """``"I/N"`` of ``--part`` as (I, N), 1 <= I <= N (None: every run).
+
+    Raises
+    ------
+    ValueError
+        Naming ``--part`` and the form it takes.
+    """
+    if text is None:
+        return None
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--part must be I/N with integers 1 <= I <= N, got {text!r}") from None
+    if not 1 <= i <= n:
+        raise ValueError(f"--part must be I/N with integers 1 <= I <= N, got {text!r}")
+    return i, n
+
+
+def numba_threads() -> int:
+    """Threads numba runs its parallel kernels on in this process."""
+    import numba
+
+    return int(numba.get_num_threads())
+
+
 def warm_up(tables: dict[str, SensorTables], lr: LocRun) -> None:
     """Compile every kernel the timed steps use (tracked and global, each model)."""
     for tab in tables.values():
@@ -886,9 +978,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--tag", default="", help="write localization_echo_TAG.json/.png (with "
                     "--only: a subset kept beside the full run's results)")
     ap.add_argument("--resume", action="store_true",
-                    help="reuse the runs of out/localization_echo/partial.json written with the "
-                    "same settings (after an interrupted run)")
+                    help="reuse the runs of out/localization_echo/partial.json and of every "
+                    "partial_partIofN.json written with the same settings (after an "
+                    "interrupted run, or to merge --part runs and add the sweep)")
+    ap.add_argument("--part", default=None, metavar="I/N",
+                    help="run only every N-th localized run from the I-th (1 <= I <= N), "
+                    "write out/localization_echo/partial_partIofN.json and stop before the "
+                    "sweep: N processes side by side, then one --resume run merges them "
+                    "and runs the sweep alone (default: every run)")
     args = ap.parse_args(argv)
+    part = parse_part(args.part)
     quick = bool(args.quick)
     seeds = args.seeds if args.seeds is not None else (1 if quick else 3)
     kidnaps = args.kidnaps if args.kidnaps is not None else (1 if quick else 3)
@@ -948,17 +1047,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     # per run: every variant, then the one-block searches
     rows: list[dict[str, Any]] = []
     by_variant: dict[str, list[dict[str, Any]]] = {v[0]: [] for v in VARIANTS}
-    partial = CACHE / (f"partial_{args.tag or 'quick'}.json" if quick or args.tag
-                       else "partial.json")
+    base = f"partial_{args.tag or 'quick'}" if quick or args.tag else "partial"
+    partial = CACHE / (f"{base}.json" if part is None else f"{base}_part{part[0]}of{part[1]}.json")
     done: dict[str, dict[str, Any]] = {}
-    if args.resume and partial.exists():
-        old = json.loads(partial.read_text())
-        if old.get("settings") == json.loads(json.dumps(json_safe(settings))):
-            done = {r["run"]: r | {"resumed": True} for r in old.get("runs", [])}
-        print(f"resume: {len(done)} runs reused from {partial}", flush=True)
+    if args.resume:
+        same = json.loads(json.dumps(json_safe(settings)))
+        for f in [CACHE / f"{base}.json", *sorted(CACHE.glob(f"{base}_part*of*.json"))]:
+            old = json.loads(f.read_text()) if f.exists() else {}
+            if old.get("settings") == same:
+                got = {r["run"]: r | {"resumed": True} for r in old.get("runs", [])}
+                done |= got
+                print(f"resume: {len(got)} runs reused from {f}", flush=True)
     print(f"\n{len(loc_runs)} localized runs, {N_PARTICLES} particles, {seeds} global seeds, "
           f"{kidnaps} kidnaps", flush=True)
-    for lr in tqdm(loc_runs, desc="runs", unit="run"):
+    mine = loc_runs if part is None else loc_runs[part[0] - 1::part[1]]
+    for lr in tqdm(mine, desc="runs", unit="run"):
         if lr.name in done:
             rows.append(done[lr.name])
             for variant, old_e in done[lr.name]["variants"].items():
@@ -1000,10 +1103,28 @@ def main(argv: Sequence[str] | None = None) -> int:
                            f" (mod sym {sr['ok_mod_sym']}), eligible {sr['eligible']}"
                            f"/{sr['moving_every_3rd']}")
         rows.append(row)
+        row["numba_threads"] = numba_threads()
+        row["part"] = None if part is None else f"{part[0]}/{part[1]}"
         row["library_unchanged"] = source_digest() == settings["library_source_sha1"]
         if not row["library_unchanged"]:
             tqdm.write("WARNING: the library source changed since the start of this run")
         write_json(partial, {"settings": settings, "scenes": scenes_out, "runs": rows})
+
+    if part is not None:
+        print(f"part {part[0]}/{part[1]}: {len(rows)} runs written to {partial}; merge the "
+              f"parts and run the sweep with --resume (same settings, no --part)", flush=True)
+        return 0
+    # runs timed in --part processes: timed again here, alone (their own timing is kept)
+    by_name = {lr.name: lr for lr in loc_runs}
+    parted = [r for r in rows if r.get("part")]
+    for r in tqdm(parted, desc="time runs of --part alone", unit="run"):
+        lr = by_name[r["run"]]
+        for variant, e in r["variants"].items():
+            tab = tables_of[lr.case.name][variant]
+            if "error" in e or isinstance(tab, str) or "timing_in_part" in e:
+                continue
+            e["timing_in_part"] = e["timing"]
+            e["timing"] = retime(tab, lr, N_PARTICLES, images[lr.case.name])
 
     # cost vs accuracy
     avail = [lr for lr in loc_runs if all(not isinstance(tables_of[lr.case.name][v], str)
