@@ -247,8 +247,9 @@ def _echo_kernel(
         n_pred = count[i]
         a_max = 0.0
         for k in range(n_pred):
-            if t.r_min <= _nz(pr[i, k]) <= t.r_max and _nz(pa[i, k]) > a_max:
-                a_max = _nz(pa[i, k])
+            a_k = _nz(pa[i, k])
+            if t.r_min <= _nz(pr[i, k]) <= t.r_max and a_k > a_max:
+                a_max = a_k
         for j in range(n_meas):
             best[j] = 0.0
             level[j] = 0.0
@@ -256,23 +257,26 @@ def _echo_kernel(
         # geometry: every (peak, echo) pair once
         for k in range(n_pred):
             r = _nz(pr[i, k])
+            c_k = _nz(pc[i, k])
+            l_k = _nz(pl[i, k])
+            m_k = _nz(ps[i, k])
             inside = t.r_min <= r <= t.r_max
-            s_k = math.sqrt(m.sig_r * m.sig_r + _nz(ps[i, k]) * _nz(ps[i, k]))
+            s_k = math.sqrt(m.sig_r * m.sig_r + m_k * m_k)
             for j in range(n_meas):
                 kv = 0.0
                 if inside:
                     d = (m.r[j] - r) / s_k
                     e = 0.5 * d * d
                     if m.use_cos and e < 18.0:      # most pairs are already out on range
-                        dc = (m.c[j] - _nz(pc[i, k])) / m.sig_c
+                        dc = (m.c[j] - c_k) / m.sig_c
                         e += 0.5 * dc * dc
                     if e < 18.0:
                         kv = math.exp(-e)
                 kap[j, k] = kv
                 if kv > best[j]:
                     best[j] = kv
-                if _nz(pl[i, k]) > 0.0:
-                    level[j] += kv * _nz(pl[i, k])
+                if l_k > 0.0:
+                    level[j] += kv * l_k
         # levels: each peak against the echoes that make it, after the pose's gain
         if levels:
             g_sum = 0.0
