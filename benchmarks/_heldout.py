@@ -8,7 +8,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
                      "group": "held-out" | "fresh" | "fresh14" | "fresh14b" | "fresh14c"
                               | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"
                               | "fresh14h" | "fresh14i" | "fresh14j" | "fresh14k"
-                              | "fresh14l" | "fresh14m"},
+                              | "fresh14l" | "fresh14m" | "fresh14n"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -29,9 +29,10 @@ where at least 1.5 predicted echoes go unheard, before any measurement of them o
 ``"fresh14i"`` at the start of session 31, before any of that session's filter changes and
 before any measurement on them, ``"fresh14j"`` at the start of session 32, before any
 measurement on them, ``"fresh14k"`` at the start of session 33, before any measurement on
-them, ``"fresh14l"`` at the start of session 34, before any measurement on them, and
-``"fresh14m"`` at the start of session 35, before any measurement on them (nothing was run on
-any of these before they were committed).
+them, ``"fresh14l"`` at the start of session 34, before any measurement on them,
+``"fresh14m"`` at the start of session 35, before any measurement on them, and ``"fresh14n"``
+at the start of session 37, before any measurement on them (nothing was run on any of these
+before they were committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -53,7 +54,7 @@ SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
                "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i", "fresh14j",
-               "fresh14k", "fresh14l", "fresh14m")
+               "fresh14k", "fresh14l", "fresh14m", "fresh14n")
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ FRESH14J = ("rotunda", "foundry", "cellar")  # written at the start of session 3
 FRESH14K = ("parlour", "bakery", "boathouse")  # written at the start of session 33: "fresh14k"
 FRESH14L = ("pantry", "arcadia", "scullery")  # written at the start of session 34: "fresh14l"
 FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session 35: "fresh14m"
+FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37: "fresh14n"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -105,6 +106,10 @@ INTERIOR = {
                 (5.6, 5.0), (0.5, 5.0)],
     "chancel": [(0.6, 0.4), (9.4, 0.0), (9.0, 4.0), (3.2, 4.6), (4.0, 7.4), (0.0, 7.6)],
     "orangery": [(0.0, 0.0), (10.0, 0.0), (9.2, 6.4), (0.0, 6.4)],
+    "vault": [(0.0, 0.0), (11.0, 0.0), (4.2, 8.0)],
+    "nursery": [(4.6, 0.0), (11.0, 4.0), (4.6, 8.0), (0.0, 4.0)],
+    "smithy": [(0.0, 0.0), (8.4, 0.0), (8.4, 6.0), (5.0, 6.0), (5.0, 5.1), (3.4, 5.1), (3.4, 6.0),
+               (0.0, 6.0)],
 }
 
 
@@ -145,6 +150,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
     assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
+    assert set(FRESH14N) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -160,7 +166,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14j" if spec.scene in FRESH14J
                     else "fresh14k" if spec.scene in FRESH14K
                     else "fresh14l" if spec.scene in FRESH14L
-                    else "fresh14m" if spec.scene in FRESH14M else "held-out")
+                    else "fresh14m" if spec.scene in FRESH14M
+                    else "fresh14n" if spec.scene in FRESH14N else "held-out")
         assert spec.group == expected
 
 
@@ -573,7 +580,7 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
 
 @pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
     ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
-    ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0)])
+    ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0)])
 def test_a_fresh_groups_nine_paths_have_their_length(
         group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
     """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
@@ -1217,6 +1224,158 @@ def test_orangery_is_open_over_part_of_a_wall_and_has_a_free_standing_planter() 
     assert _headings_apart_deg("orangery-line", "orangery-curve") > 50.0
 
 
+def test_vault_is_a_triangle_with_a_tomb_along_its_west_wall_hiding_a_strip() -> None:
+    vault = heldout_scene("vault")
+    walls = {w.name: w for w in vault.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in vault.walls)  # a stone vault: all rigid
+    outline, interior = _outline("vault", 3)       # the only three-walled room
+    assert np.allclose(interior, [62.30, 49.64, 68.06], atol=0.01)
+    assert np.all(np.abs(interior - 90.0) > 20.0)  # every corner acute
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 44.0)
+    assert np.allclose([walls[n].length_m for n in ("south", "east", "west")],
+                       [11.0, 10.50, 9.04], atol=0.005)
+    segments = vault.segments()
+    is_tomb = np.array([n.startswith("tomb") for n in names])
+    assert is_tomb.sum() == 4
+    # the tomb: a closed rigid 2.0 m x 0.8 m block, its long sides parallel to the west wall,
+    # 1.5 m off it, standing free
+    tomb = segments[is_tomb]
+    assert np.allclose(tomb[:, 1], np.roll(tomb[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(tomb[:, 1] - tomb[:, 0], axis=1), [0.8, 2.0] * 2, atol=1e-3)
+    directions = _directions_deg("vault")
+    west = names.index("west")
+    assert np.allclose(directions[[names.index("tomb east"), names.index("tomb west")]],
+                       directions[west], atol=0.01)
+    assert np.isclose(distance_to_walls(tomb[:, 0], segments[west][None]).min(), 1.5, atol=1e-3)
+    assert distance_to_walls(tomb[:, 0], segments[~is_tomb]).min() > 1.4
+    # the mapped curve: the south-east only; 1.4 m of a line down the middle of the strip
+    # between the tomb and the west wall is out of its sight (control: without the tomb all in
+    # sight)
+    curve = _positions("vault-curve")
+    assert curve[:, 0].min() > 5.0
+    along = (segments[west][0] - segments[west][1]) / np.linalg.norm(
+        segments[west][0] - segments[west][1])            # up the west wall, from the corner
+    inward = np.array([along[1], -along[0]])
+    strip = np.linspace(2.8, 4.2, 15)[:, None] * along + 0.75 * inward
+    assert distance_to_walls(strip, segments).min() > 0.7
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_tomb]).all()
+    # vault-tomb: down the strip, more than 1.5 m of it out of the curve's sight
+    assert distance_to_walls(_positions("vault-tomb"), tomb).min() < 0.8
+    assert _hidden_length_m("vault-tomb", curve, segments) > 1.5
+    assert _hidden_length_m("vault-tomb", curve, segments[~is_tomb]) == 0.0
+    assert _seen(_positions("vault-tomb")[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(_positions("vault-tomb"), curve_segments).max() > 3.0
+    # vault-line: along the south wall below the tomb, all of it in the curve's sight, at least
+    # 50 deg from every heading of the curve
+    line = _positions("vault-line", 300)
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("vault-line", "vault-curve") > 50.0
+
+
+def test_nursery_is_a_kite_its_own_mirror_but_for_a_doorway_with_a_screen_on_its_axis() -> None:
+    nursery = heldout_scene("nursery")
+    walls = {w.name: w for w in nursery.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in nursery.walls)
+    outline, interior = _outline("nursery", 4)     # closed across the doorway
+    assert np.allclose(interior, [106.99, 64.01, 106.99, 82.02], atol=0.01)
+    assert np.all(np.abs(interior - 90.0) > 7.9)   # no right angle
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 44.0)
+    edges = np.linalg.norm(np.roll(outline, -1, axis=0) - outline, axis=1)
+    assert np.allclose(edges, [7.547, 7.547, 6.096, 6.096], atol=1e-3)  # a kite
+    segments = nursery.segments()
+    is_screen = np.array([n == "screen" for n in names])
+    # the doorway: 1.0 m of the north-west wall, 2.4-3.4 m from the north corner, nothing
+    # beyond (every wall on the room's side of the north-west wall's line)
+    gap = np.array([walls["north-west upper"].end, walls["north-west lower"].start])
+    assert np.isclose(np.linalg.norm(gap[1] - gap[0]), 1.0)
+    assert np.isclose(np.linalg.norm(gap[0] - outline[2]), 2.4)
+    corner_n, corner_w = outline[2], outline[3]
+    normal = np.array([corner_w[1] - corner_n[1], corner_n[0] - corner_w[0]])  # outwards
+    assert np.all((segments.reshape(-1, 2) - corner_n) @ normal < 1e-3)
+    assert np.isclose(distance_to_walls(gap.mean(axis=0)[None], segments)[0], 0.5)
+    # the screen: 3.6 m on the axis y = 4.0, both ends free
+    screen = segments[is_screen][0]
+    assert np.allclose(screen, [(5.0, 4.0), (8.6, 4.0)])
+    assert np.isclose(distance_to_walls(screen, segments[~is_screen]).min(), 1.272, atol=1e-3)
+    # mirrored about the axis the room lies on itself but for the doorway: only points of the
+    # south-west wall facing it move off, by up to half its width
+    on_walls = np.concatenate([np.linspace(a, b, 201) for a, b in segments])
+    source = np.repeat(np.arange(len(segments)), 201)
+    moved = distance_to_walls(on_walls * [1.0, -1.0] + [0.0, 8.0], segments)
+    assert np.isclose(moved.max(), 0.5, atol=0.01)
+    assert np.all(source[moved > 1e-4] == names.index("south-west"))  # 4-decimal corners
+    # the mapped curve: the north half only; a line 0.6 m below the screen, x 6.6-8.2, is out
+    # of its sight (control: without the screen all in sight)
+    curve = _positions("nursery-curve")
+    assert curve[:, 1].min() > 4.5
+    assert distance_to_walls(curve, gap[None]).min() < 0.85  # passes the doorway
+    strip = np.column_stack([np.linspace(6.6, 8.2, 15), np.full(15, 3.4)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_screen]).all()
+    # nursery-south: the south half, nearly the mirror image of the mapped part, 0.9 m of it
+    # below the screen out of the curve's sight
+    south = _positions("nursery-south")
+    assert south[:, 1].max() < 4.0
+    assert _hidden_length_m("nursery-south", curve, segments) > 0.85
+    assert _hidden_length_m("nursery-south", curve, segments[~is_screen]) == 0.0
+    assert _seen(south[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(south, curve_segments).max() > 4.0
+    # nursery-line: over the north half, all of it in the curve's sight, at least 50 deg from
+    # every heading of the curve
+    line = _positions("nursery-line", 300)
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("nursery-line", "nursery-curve") > 50.0
+
+
+def test_smithy_has_a_chimney_breast_a_curtain_and_a_hearth_hiding_a_strip() -> None:
+    smithy = heldout_scene("smithy")
+    walls = {w.name: w for w in smithy.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "west": 0.6}                               # a leather curtain over the yard door
+    outline, interior = _outline("smithy", 8)
+    assert np.allclose(interior, [90, 90, 90, 90, 270, 270, 90, 90])  # the breast's two reflex
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 48.96)
+    assert walls["breast front"].length_m == 1.6 and np.isclose(walls["breast east"].length_m, 0.9)
+    segments = smithy.segments()
+    is_hearth = np.array([n.startswith("hearth") for n in names])
+    # the hearth: a closed rigid 0.8 m x 2.0 m block standing free, 2.0 m from the east wall
+    hearth = segments[is_hearth]
+    assert len(hearth) == 4 and np.allclose(hearth[:, 1], np.roll(hearth[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(hearth[:, 1] - hearth[:, 0], axis=1), [0.8, 2.0] * 2)
+    assert np.isclose(distance_to_walls(hearth[:, 0], segments[[names.index("east")]]).min(), 2.0)
+    assert distance_to_walls(hearth[:, 0], segments[~is_hearth]).min() > 1.2
+    # the mapped curve: the west part only; the strip between the hearth and the east wall,
+    # x = 7.4, y 2.4-3.4, is out of its sight (control: without the hearth all in sight)
+    curve = _positions("smithy-curve")
+    assert curve[:, 0].max() < 4.25
+    assert distance_to_walls(curve, segments[[names.index("west")]]).min() < 1.1
+    strip = np.column_stack([np.full(15, 7.4), np.linspace(2.4, 3.4, 15)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_hearth]).all()
+    # smithy-hearth: down that strip, more than 1.2 m of it out of the curve's sight
+    hearth_path = _positions("smithy-hearth")
+    assert hearth_path[:, 0].max() > 7.4 and distance_to_walls(hearth_path, hearth).min() < 1.2
+    assert _hidden_length_m("smithy-hearth", curve, segments) > 1.2
+    assert _hidden_length_m("smithy-hearth", curve, segments[~is_hearth]) == 0.0
+    assert _seen(hearth_path[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(hearth_path, curve_segments).max() > 4.0
+    # smithy-line: between the hearth and the breast, all of it in the curve's sight, at least
+    # 50 deg from every heading of the curve
+    line = _positions("smithy-line", 300)
+    assert _seen(line, curve, segments).all()
+    assert _headings_apart_deg("smithy-line", "smithy-curve") > 50.0
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1242,7 +1401,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14j": FRESH14B_CLEARANCE_M,
                  "fresh14k": FRESH14B_CLEARANCE_M,
                  "fresh14l": FRESH14B_CLEARANCE_M,
-                 "fresh14m": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14m": FRESH14B_CLEARANCE_M,
+                 "fresh14n": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
