@@ -823,7 +823,7 @@ class ParticleFilter:
         scale_sd = (refine.speed_scale_sd(speed_m_s, yaw_rate_rad_s, dt_s, self.config.motion)
                     if rc.speed_scale else 0.0)
         out = refine.update(self.tables, meas, track[0], track[1], sigma_r, sigma_c, rc,
-                            scale_sd)
+                            scale_sd, refine.model_cov(yaw_rate_rad_s, dt_s, rc))
         if not out.ok:
             return track, self.scatter, False
         return ((out.mean, out.cov),

@@ -3,9 +3,12 @@
 Independent truths: the EKF prediction against a Monte Carlo of the odometry motion model it
 linearizes; the update's mean and covariance against repeated exact echoes with known
 Gaussian noise (the normalized error must average 3, the chi-square mean of three degrees
-of freedom); the Jacobian of a first-order echo against the wall's normal. Edges: a clutter
-peak, a block no pose near the prior explains, a stationary (range-only) block, no peaks, a
-bad prior; in the particle filter: refined only while converged, exact checkpoints.
+of freedom), also when the whole block is off by a common pose error of known covariance
+(the model error of :func:`localization.refine.model_cov`); the common-error information
+against the direct inverse ``(M^-1 + Q)^-1``; the Jacobian of a first-order echo against
+the wall's normal. Edges: a clutter peak, a block no pose near the prior explains, a
+stationary (range-only) block, no peaks, a bad prior; in the particle filter: refined only
+while converged, exact checkpoints.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from localization import motion, refine
@@ -139,6 +144,82 @@ def test_a_common_speed_error_is_estimated_and_kept_in_the_covariance(
     assert float(np.mean(without)) > 6.0
 
 
+
+def test_a_common_pose_error_is_kept_in_the_covariance(tables: SensorTables) -> None:
+    """Blocks whose echoes are all those of a pose off the truth by one error drawn from
+    ``Q`` (what a forward model wrong for the block does: a turn inside the block), plus
+    small independent noise: with ``common_cov=Q`` the error of the estimate from the truth
+    is chi-square with 3 degrees of freedom in the posterior covariance (mean 3); without it
+    the covariance is overconfident (mean far above 3), and with a zero ``Q`` the update is
+    the plain one exactly."""
+    rng = np.random.default_rng(9)
+    P0 = np.diag([0.01**2, 0.01**2, math.radians(1.0) ** 2])
+    Q = np.diag([0.002**2, 0.002**2, math.radians(0.5) ** 2])
+    sr, sc = 0.0002, 0.003
+    with_q, without = [], []
+    for _ in range(150):
+        prior = rng.multivariate_normal(TRUTH, P0)
+        meas = _exact(tables, rng.multivariate_normal(TRUTH, Q), sr, sc, rng)
+        a = refine.update(tables, meas, prior, P0, sr, sc, CFG, 0.0, Q)
+        b = refine.update(tables, meas, prior, P0, sr, sc, CFG, 0.0)
+        if a.ok:
+            with_q.append(nees(a.mean, a.cov, TRUTH))
+        if b.ok:
+            without.append(nees(b.mean, b.cov, TRUTH))
+        zero = refine.update(tables, meas, prior, P0, sr, sc, CFG, 0.0, np.zeros((3, 3)))
+        assert zero.ok == b.ok and np.array_equal(zero.mean, b.mean)
+    assert len(with_q) >= 140
+    assert 2.4 <= float(np.mean(with_q)) <= 3.7
+    assert float(np.mean(without)) > 30.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 3))
+def test_common_error_information_is_the_inverse_of_the_summed_covariances(
+        seed: int, rank: int) -> None:
+    """``(I + M Q)^-1 M`` equals ``(M^-1 + Q)^-1`` for an invertible ``M`` (rank 4) and,
+    for a singular one, the same on the directions the measurement sees,
+    ``U (S^-1 + U' Q U)^-1 U'`` (``M = U S U'``, ``U`` its range): directions it does not
+    see stay unseen. The gradient follows ``M``'s (``g = M d`` becomes ``m d``)."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(4, 4))
+    M = a[:, :rank] @ a[:, :rank].T * 10.0 ** rng.uniform(0, 6)
+    b = rng.normal(size=(4, 4))
+    Q = b @ b.T * 10.0 ** rng.uniform(-6, 0)
+    d = rng.normal(size=4)
+    m, g = refine.common_error_information(M, M @ d, Q)
+    np.testing.assert_allclose(m, m.T)
+    vals, vecs = np.linalg.eigh(M)
+    seen = vals > 1e-9 * max(1.0, float(vals.max()))
+    U, S = vecs[:, seen], vals[seen]
+    direct = U @ np.linalg.inv(np.diag(1.0 / S) + U.T @ Q @ U) @ U.T
+    if rank == 4:
+        np.testing.assert_allclose(direct, np.linalg.inv(np.linalg.inv(M) + Q), rtol=1e-6,
+                                   atol=1e-9 * float(np.abs(direct).max()))
+    scale = max(1.0, float(np.abs(direct).max()))
+    np.testing.assert_allclose(m, direct, atol=1e-7 * scale)
+    assert np.linalg.eigvalsh(m).min() >= -1e-7 * scale
+    np.testing.assert_allclose(g, m @ d, atol=1e-7 * scale * max(1.0, float(np.abs(d).max())))
+    np.testing.assert_allclose(m @ vecs[:, ~seen], 0.0, atol=1e-7 * scale)
+    # a zero Q changes nothing
+    m0, g0 = refine.common_error_information(M, M @ d, np.zeros((4, 4)))
+    np.testing.assert_allclose(m0, M, rtol=1e-12, atol=1e-12)
+
+
+def test_model_cov_is_the_constant_part_plus_a_part_linear_in_the_turn() -> None:
+    cfg = refine.RefineConfig(model_pos_m=0.001, model_heading_rad=0.002,
+                              turn_pos_m_per_rad=0.004, turn_heading_per_rad=0.05)
+    straight = refine.model_cov(0.0, 1.023, cfg)
+    np.testing.assert_allclose(straight, np.diag([1e-6, 1e-6, 4e-6]))
+    turn = refine.model_cov(-0.3, 1.0, cfg)            # |dtheta| = 0.3 rad, either sign
+    np.testing.assert_allclose(turn, np.diag([1e-6 + 0.0012**2, 1e-6 + 0.0012**2,
+                                              4e-6 + 0.015**2]))
+    np.testing.assert_array_equal(turn, refine.model_cov(0.3, 1.0, cfg))
+    none = refine.RefineConfig(model_pos_m=0.0, model_heading_rad=0.0,
+                               turn_pos_m_per_rad=0.0, turn_heading_per_rad=0.0)
+    np.testing.assert_array_equal(refine.model_cov(0.5, 1.0, none), np.zeros((3, 3)))
+
+
 def test_speed_scale_sd_is_the_motion_models_relative_translation_sigma() -> None:
     noise = MotionNoise()
     _, s_trans, _ = motion.motion_std(0.0, 0.15 * 1.023, 0.0, noise)
@@ -249,7 +330,8 @@ def test_noise_is_the_robust_scale_of_kept_residuals_with_floors(tables: SensorT
 @pytest.mark.parametrize(("field", "value"), [
     ("range_floor_m", 0.0), ("cos_floor", -1.0), ("gate_sigma", 0.5), ("iterations", 0),
     ("min_matches", 0), ("max_nis", 0.5), ("scatter_memory", 4), ("reset_mahalanobis", 0.0),
-    ("min_match_share", 1.5), ("max_move_sigma", 0.0),
+    ("min_match_share", 1.5), ("max_move_sigma", 0.0), ("model_pos_m", -0.001),
+    ("model_heading_rad", 2.0), ("turn_pos_m_per_rad", -1.0), ("turn_heading_per_rad", 1.5),
 ])
 def test_settings_are_validated(field: str, value: float) -> None:
     with pytest.raises(ValueError, match=field):
