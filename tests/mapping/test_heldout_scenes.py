@@ -1224,6 +1224,27 @@ def test_orangery_is_open_over_part_of_a_wall_and_has_a_free_standing_planter() 
     assert _headings_apart_deg("orangery-line", "orangery-curve") > 50.0
 
 
+def _leaves_sight(name: str, curve: np.ndarray, segments: np.ndarray, unblocked: np.ndarray,
+                  hidden_m: float, far_m: float) -> None:
+    """The path ``name`` starts in the mapped ``curve``'s sight, goes more than ``hidden_m``
+    out of it behind ``segments`` (none without the walls ``unblocked`` drops: the control)
+    and more than ``far_m`` from the curve."""
+    driven = _positions(name)
+    assert _hidden_length_m(name, curve, segments) > hidden_m
+    assert _hidden_length_m(name, curve, segments[unblocked]) == 0.0
+    assert _seen(driven[:1], curve, segments).all()  # starts in sight
+    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
+    assert distance_to_walls(driven, curve_segments).max() > far_m
+
+
+def _line_in_sight(name: str, curve_name: str, curve: np.ndarray, segments: np.ndarray,
+                   apart_deg: float = 50.0) -> None:
+    """The line path ``name`` is all in the mapped curve's sight and at least ``apart_deg``
+    from every heading of the curve."""
+    assert _seen(_positions(name, 300), curve, segments).all()
+    assert _headings_apart_deg(name, curve_name) > apart_deg
+
+
 def test_vault_is_a_triangle_with_a_tomb_along_its_west_wall_hiding_a_strip() -> None:
     vault = heldout_scene("vault")
     walls = {w.name: w for w in vault.walls}
@@ -1264,16 +1285,10 @@ def test_vault_is_a_triangle_with_a_tomb_along_its_west_wall_hiding_a_strip() ->
     assert _seen(strip, curve, segments[~is_tomb]).all()
     # vault-tomb: down the strip, more than 1.5 m of it out of the curve's sight
     assert distance_to_walls(_positions("vault-tomb"), tomb).min() < 0.8
-    assert _hidden_length_m("vault-tomb", curve, segments) > 1.5
-    assert _hidden_length_m("vault-tomb", curve, segments[~is_tomb]) == 0.0
-    assert _seen(_positions("vault-tomb")[:1], curve, segments).all()  # starts in sight
-    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
-    assert distance_to_walls(_positions("vault-tomb"), curve_segments).max() > 3.0
+    _leaves_sight("vault-tomb", curve, segments, ~is_tomb, hidden_m=1.5, far_m=3.0)
     # vault-line: along the south wall below the tomb, all of it in the curve's sight, at least
     # 50 deg from every heading of the curve
-    line = _positions("vault-line", 300)
-    assert _seen(line, curve, segments).all()
-    assert _headings_apart_deg("vault-line", "vault-curve") > 50.0
+    _line_in_sight("vault-line", "vault-curve", curve, segments)
 
 
 def test_nursery_is_a_kite_its_own_mirror_but_for_a_doorway_with_a_screen_on_its_axis() -> None:
@@ -1322,16 +1337,10 @@ def test_nursery_is_a_kite_its_own_mirror_but_for_a_doorway_with_a_screen_on_its
     # below the screen out of the curve's sight
     south = _positions("nursery-south")
     assert south[:, 1].max() < 4.0
-    assert _hidden_length_m("nursery-south", curve, segments) > 0.85
-    assert _hidden_length_m("nursery-south", curve, segments[~is_screen]) == 0.0
-    assert _seen(south[:1], curve, segments).all()  # starts in sight
-    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
-    assert distance_to_walls(south, curve_segments).max() > 4.0
+    _leaves_sight("nursery-south", curve, segments, ~is_screen, hidden_m=0.85, far_m=4.0)
     # nursery-line: over the north half, all of it in the curve's sight, at least 50 deg from
     # every heading of the curve
-    line = _positions("nursery-line", 300)
-    assert _seen(line, curve, segments).all()
-    assert _headings_apart_deg("nursery-line", "nursery-curve") > 50.0
+    _line_in_sight("nursery-line", "nursery-curve", curve, segments)
 
 
 def test_smithy_has_a_chimney_breast_a_curtain_and_a_hearth_hiding_a_strip() -> None:
@@ -1364,16 +1373,10 @@ def test_smithy_has_a_chimney_breast_a_curtain_and_a_hearth_hiding_a_strip() -> 
     # smithy-hearth: down that strip, more than 1.2 m of it out of the curve's sight
     hearth_path = _positions("smithy-hearth")
     assert hearth_path[:, 0].max() > 7.4 and distance_to_walls(hearth_path, hearth).min() < 1.2
-    assert _hidden_length_m("smithy-hearth", curve, segments) > 1.2
-    assert _hidden_length_m("smithy-hearth", curve, segments[~is_hearth]) == 0.0
-    assert _seen(hearth_path[:1], curve, segments).all()  # starts in sight
-    curve_segments = np.stack([curve[:-1], curve[1:]], axis=1)
-    assert distance_to_walls(hearth_path, curve_segments).max() > 4.0
+    _leaves_sight("smithy-hearth", curve, segments, ~is_hearth, hidden_m=1.2, far_m=4.0)
     # smithy-line: between the hearth and the breast, all of it in the curve's sight, at least
     # 50 deg from every heading of the curve
-    line = _positions("smithy-line", 300)
-    assert _seen(line, curve, segments).all()
-    assert _headings_apart_deg("smithy-line", "smithy-curve") > 50.0
+    _line_in_sight("smithy-line", "smithy-curve", curve, segments)
 
 
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
