@@ -285,6 +285,14 @@ def test_a_stationary_block_refines_position_and_leaves_heading_to_the_prior(
     assert math.hypot(*(out.mean[:2] - TRUTH[:2])) < 0.002
     assert out.cov[2, 2] == pytest.approx(P0[2, 2], rel=1e-3)
     assert out.mean[2] == pytest.approx(prior[2], abs=1e-3)
+    # with the model's common error (the filter passes it on every block): the ranges still
+    # fix the position, to within that error, and the heading they do not see stays the prior's
+    q = refine.model_cov(0.0, 1.023, CFG)
+    held = refine.update(tables, meas, prior, P0, 0.001, 0.02, CFG, 0.0, q)
+    assert held.ok and math.hypot(*(held.mean[:2] - TRUTH[:2])) < 0.002
+    assert held.cov[0, 0] >= out.cov[0, 0] and held.cov[1, 1] >= out.cov[1, 1]
+    assert held.cov[2, 2] == pytest.approx(P0[2, 2], rel=1e-3)
+    assert held.mean[2] == pytest.approx(prior[2], abs=1e-3)
 
 
 def test_no_peaks_or_a_bad_prior_is_refused(tables: SensorTables) -> None:
