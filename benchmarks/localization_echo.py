@@ -625,12 +625,35 @@ def timing(traces: Sequence[Trace]) -> dict[str, Any]:
             "cpu_ms_p95": 1e3 * float(np.percentile(cpu, 95))}
 
 
-def retime(tables: SensorTables, lr: LocRun, n: int, images: Images) -> dict[str, Any]:
+#: Fields of a trial's record that are timings (they differ from run to run).
+TIMING_KEYS = ("first_step_ms",)
+
+
+def same_result(new: dict[str, Any], old: dict[str, Any]) -> bool:
+    """Whether two records of one trial agree in every field but the timings (after a JSON
+    round trip, as the stored one was)."""
+    def norm(d: dict[str, Any]) -> Any:
+        return json.loads(json.dumps(json_safe({k: v for k, v in d.items()
+                                                if k not in TIMING_KEYS})))
+    return bool(norm(new) == norm(old))
+
+
+def retime(tables: SensorTables, lr: LocRun, n: int, images: Images,
+           stored: dict[str, Any] | None = None) -> dict[str, Any]:
     """Time per update of ``lr`` alone in this process: its tracked run and its first global
-    start (the runs of ``--part`` processes shared the machine, one numba thread each)."""
-    _, tr = tracking_trial(tables, lr.feed, n, images)
-    _, gt = global_trial(tables, lr.feed, n, 0, images)
-    return timing([tr, gt]) | {"numba_threads": numba_threads(), "trials": "tracking, global 0"}
+    start (the runs of ``--part`` processes shared the machine, one numba thread each).
+
+    With the run's ``stored`` record (from a ``--part`` process), the two trials' results
+    are compared with it: ``reproduced`` is True when both agree in every field but the
+    timings (the filter is deterministic for a seed, and numba's thread count does not
+    change its numbers; a library changed since the parts would show here)."""
+    track, tr = tracking_trial(tables, lr.feed, n, images)
+    g0, gt = global_trial(tables, lr.feed, n, 0, images)
+    out = timing([tr, gt]) | {"numba_threads": numba_threads(), "trials": "tracking, global 0"}
+    if stored is not None and stored.get("global"):
+        out["reproduced"] = (same_result(track, stored["tracking"])
+                             and same_result(g0, stored["global"][0]))
+    return out
 
 
 def sum_cw(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -981,6 +1004,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="reuse the runs of out/localization_echo/partial.json and of every "
                     "partial_partIofN.json written with the same settings (after an "
                     "interrupted run, or to merge --part runs and add the sweep)")
+    ap.add_argument("--reuse-accuracy", action="store_true",
+                    help="with --resume: reuse part files written by another version of the "
+                    "library or of this script (a change meant to alter speed only); every "
+                    "reused run's tracking and first global start are run again here and "
+                    "must reproduce the stored results (the result records the old digests "
+                    "and each check; a mismatch is reported)")
     ap.add_argument("--part", default=None, metavar="I/N",
                     help="run only every N-th localized run from the I-th (1 <= I <= N), "
                     "write out/localization_echo/partial_partIofN.json and stop before the "
@@ -1050,14 +1079,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     base = f"partial_{args.tag or 'quick'}" if quick or args.tag else "partial"
     partial = CACHE / (f"{base}.json" if part is None else f"{base}_part{part[0]}of{part[1]}.json")
     done: dict[str, dict[str, Any]] = {}
+    reused_from: dict[str, dict[str, str]] = {}
+    if args.reuse_accuracy and not args.resume:
+        ap.error("--reuse-accuracy needs --resume")
     if args.resume:
         same = json.loads(json.dumps(json_safe(settings)))
+        digests = ("library_source_sha1", "benchmark_sha1")
         for f in [CACHE / f"{base}.json", *sorted(CACHE.glob(f"{base}_part*of*.json"))]:
             old = json.loads(f.read_text()) if f.exists() else {}
-            if old.get("settings") == same:
-                got = {r["run"]: r | {"resumed": True} for r in old.get("runs", [])}
-                done |= got
-                print(f"resume: {len(got)} runs reused from {f}", flush=True)
+            theirs = old.get("settings", {})
+            if args.reuse_accuracy and theirs and (
+                    {k: v for k, v in theirs.items() if k not in digests}
+                    == {k: v for k, v in same.items() if k not in digests}):
+                reused_from[f.name] = {k: theirs.get(k, "") for k in digests}
+            elif theirs != same:
+                continue
+            got = {r["run"]: r | {"resumed": True} for r in old.get("runs", [])}
+            done |= got
+            print(f"resume: {len(got)} runs reused from {f}", flush=True)
     print(f"\n{len(loc_runs)} localized runs, {N_PARTICLES} particles, {seeds} global seeds, "
           f"{kidnaps} kidnaps", flush=True)
     mine = loc_runs if part is None else loc_runs[part[0] - 1::part[1]]
@@ -1124,7 +1163,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "error" in e or isinstance(tab, str) or "timing_in_part" in e:
                 continue
             e["timing_in_part"] = e["timing"]
-            e["timing"] = retime(tab, lr, N_PARTICLES, images[lr.case.name])
+            e["timing"] = retime(tab, lr, N_PARTICLES, images[lr.case.name], e)
+    checked = [(r["run"], v, e["timing"]["reproduced"]) for r in parted
+               for v, e in r["variants"].items() if "reproduced" in e.get("timing", {})]
+    reproduced = {"checked": len(checked), "equal": sum(ok for *_, ok in checked),
+                  "differ": [f"{name}/{v}" for name, v, ok in checked if not ok],
+                  "accuracy_reused_from": reused_from}
+    print(f"reproduced: {reproduced['equal']} of {reproduced['checked']} run-variants give "
+          f"the stored tracking and first global start again", flush=True)
+    if reproduced["differ"]:
+        print(f"WARNING: results differ from the stored ones on {reproduced['differ']}"
+              + (" - the reused accuracy is not this library's" if reused_from else ""),
+              flush=True)
 
     # cost vs accuracy
     avail = [lr for lr in loc_runs if all(not isinstance(tables_of[lr.case.name][v], str)
@@ -1181,6 +1231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "settings": settings, "scenes": scenes_out, "runs": rows, "summary": summary,
         "one_block_search": search_summary,
         "sweep": {"runs": [lr.name for lr in subset], "rows": sweep},
+        "reproduced": reproduced,
         "runtime_s": time.perf_counter() - t_start,
     }
     write_json(out_dir / f"{stem}.json", result)

@@ -81,7 +81,8 @@ def cos_sigma(tables: SensorTables, measurement: Measurement) -> float:
     return float(min(max(cfg.cos_sigma_min, cfg.cos_sigma_beam * beam), 2.0))
 
 
-def map_range_sigma(tables: SensorTables, batch: EchoBatch) -> FloatArray | None:
+def map_range_sigma(tables: SensorTables, batch: EchoBatch, parallel: bool = False
+                    ) -> FloatArray | None:
     """The map's 1-sigma range uncertainty of each predicted echo (n, kmax), None for a map
     without one (ideal walls).
 
@@ -89,13 +90,14 @@ def map_range_sigma(tables: SensorTables, batch: EchoBatch) -> FloatArray | None
     (``WallMap.wall_sigma``) move the echo by ``o`` and by ``s a``, ``s`` the distance of
     the bounce point from the wall's middle (the fit turns about its centre of mass, which
     the middle stands in for); independent terms add in quadrature. numba kernel
-    (``_kernels._map_sigma_kernel``); its numpy twin is in ``tests/localization/sensor/naive.py``.
+    (``_kernels._map_sigma_kernel``; ``parallel``: over numba's threads, the same numbers); its
+    numpy twin is in ``tests/localization/sensor/naive.py``.
     """
     ws = tables.wall_sigma
     if ws.shape[0] != tables.walls.n or not np.any(ws[:, :2] > 0):
         return None
     return _k.map_sigma_rows(np.asarray(tables.walls.segments_m, dtype=np.float64)
-                             .reshape(-1, 2, 2), ws, batch.walls, batch.points_m)
+                             .reshape(-1, 2, 2), ws, batch.walls, batch.points_m, parallel)
 
 
 def _terms(tables: SensorTables) -> _k._EchoTerms:
@@ -135,7 +137,7 @@ def predicted_echoes(tables: SensorTables, speed_m_s: float, poses: FloatArray,
         parallel = np.shape(poses)[0] >= SERIAL_BELOW
     b = echoes_batch(tables.soft_ends[0], poses, speed_m_s, tables.sonar, params,
                      parallel=parallel)
-    return b, map_range_sigma(tables, b)
+    return b, map_range_sigma(tables, b, parallel)
 
 
 def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArray
@@ -156,8 +158,10 @@ def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArra
         empty = np.zeros((n, 0))
         out = _k.score_echo(count, empty, empty, empty, peaks, _terms(tables))
     else:
-        b, sigma = predicted_echoes(tables, measurement.speed_m_s, poses)
-        level = b.amplitude * end_weights(tables.walls, tables.soft_ends[1], b.walls, b.points_m)
+        parallel = poses.shape[0] >= SERIAL_BELOW
+        b, sigma = predicted_echoes(tables, measurement.speed_m_s, poses, parallel)
+        level = b.amplitude * end_weights(tables.walls, tables.soft_ends[1], b.walls, b.points_m,
+                                          parallel)
         dz, refl = tables.config.vertical()
         if dz.size:  # floor / ceiling copies: explain peaks, never expected (level 0)
             copies = 1 + dz.size
@@ -167,7 +171,7 @@ def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArra
             sigma = None if sigma is None else np.repeat(sigma, copies, axis=1)
         # a wall end's weight is whether the echo exists; once heard it has its amplitude
         out = _k.score_echo(b.count, b.range_m, b.cos_doppler, level, peaks,
-                            _terms(tables), sigma, b.amplitude)
+                            _terms(tables), sigma, b.amplitude, parallel)
     return Explanation(log_likelihood=out[:, 0], explained=out[:, 1], heard=out[:, 2],
                        n_peaks=measurement.n_peaks)
 

@@ -6,10 +6,13 @@ The kernels read small records instead of long positional lists: :class:`_ScoreT
 measurement entries). Each kernel's slow, plain numpy twin lives with the tests
 (``tests/localization/sensor/naive.py``), which compare the two.
 
-The kernels are serial on purpose (``nogil``, no ``prange``): one filter update is a few
-milliseconds, the HTTP service runs many sessions' updates in parallel threads, and on this
-shared 2-core machine a parallel region waiting for its second thread cost 10-20 ms per call
-(measured: 2.5 ms per update with one thread vs 18-25 ms with two under load).
+The G models' kernels are serial on purpose (``nogil``, no ``prange``): one filter update is
+a few milliseconds, the HTTP service runs many sessions' updates in parallel threads, and on
+this shared 2-core machine a parallel region waiting for its second thread cost 10-20 ms per
+call (measured: 2.5 ms per update with one thread vs 18-25 ms with two under load). The echo
+model's scoring has a parallel twin (:func:`_echo_kernel_parallel`), used where its forward
+model runs in parallel too (a particle set, not the few poses of a refinement): its update is
+several times the G model's, mostly these two kernels.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from mapping.numba_config import NUMBA_FLAGS
+from mapping.numba_config import NUMBA_FLAGS, PARALLEL
 
 
 class _ScoreTables(NamedTuple):
@@ -207,6 +210,27 @@ def _nz(x: float) -> float:
     return x
 
 
+class _EchoScratch(NamedTuple):
+    """Work arrays of one thread of :func:`_echo_rows`, reused pose after pose: per measured
+    peak the best kappa, the summed level of the echoes that make it and its level factor
+    alpha, and kappa of every (peak, echo) pair."""
+
+    best: NDArray[np.float64]
+    level: NDArray[np.float64]
+    alpha: NDArray[np.float64]
+    kap: NDArray[np.float64]
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _echo_scratch(n_meas: int, k: int) -> _EchoScratch:
+    return _EchoScratch(np.empty(n_meas), np.empty(n_meas), np.empty(n_meas),
+                        np.zeros((n_meas, k)))
+
+
+#: Poses per work item of :func:`_echo_kernel_parallel` (each item allocates its scratch once).
+ECHO_CHUNK = 64
+
+
 @numba.njit(**NUMBA_FLAGS)
 def _echo_kernel(
     count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
@@ -233,17 +257,41 @@ def _echo_kernel(
     detection-weighted share of predicted echoes heard (``sum p_k max_j kappa / sum p_k``; 1
     when none is expected), both geometric (range and cosine, never the level).
     """
+    sc = _echo_scratch(m.r.shape[0], pr.shape[1])
+    _echo_rows(count, pr, pc, pa, ps, pl, m, t, out, 0, count.shape[0], sc)
+
+
+@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _echo_kernel_parallel(
+    count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
+    pa: NDArray[np.float64], ps: NDArray[np.float64], pl: NDArray[np.float64],
+    m: _EchoPeaks, t: _EchoTerms, out: NDArray[np.float64],
+) -> None:
+    """:func:`_echo_kernel` spread over numba's threads in chunks of :data:`ECHO_CHUNK` poses
+    (each pose's arithmetic unchanged: the same numbers bit for bit)."""
+    n = count.shape[0]
+    for c in numba.prange((n + ECHO_CHUNK - 1) // ECHO_CHUNK):
+        sc = _echo_scratch(m.r.shape[0], pr.shape[1])
+        _echo_rows(count, pr, pc, pa, ps, pl, m, t, out, c * ECHO_CHUNK,
+                   min(n, (c + 1) * ECHO_CHUNK), sc)
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _echo_rows(
+    count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
+    pa: NDArray[np.float64], ps: NDArray[np.float64], pl: NDArray[np.float64],
+    m: _EchoPeaks, t: _EchoTerms, out: NDArray[np.float64], i0: int, i1: int,
+    sc: _EchoScratch,
+) -> None:
+    """Rows ``i0 .. i1 - 1`` of :func:`_echo_kernel` with the work arrays ``sc``."""
     n_meas = m.r.shape[0]
-    best = np.empty(n_meas)
-    level = np.empty(n_meas)
-    alpha = np.empty(n_meas)
-    kap = np.zeros((n_meas, pr.shape[1]))
+    best, level, alpha, kap = sc.best, sc.level, sc.alpha, sc.kap
     w_sum = 0.0
     for j in range(n_meas):
         w_sum += m.w[j]
     log_eps = math.log(t.eps)
     levels = t.sig_a > 0.0 and n_meas >= 2
-    for i in range(count.shape[0]):
+    for i in range(i0, i1):
         n_pred = count[i]
         a_max = 0.0
         for k in range(n_pred):
@@ -325,19 +373,22 @@ def _echo_kernel(
 def score_echo(count: NDArray[np.int64], pr: NDArray[np.float64], pc: NDArray[np.float64],
                pa: NDArray[np.float64], m: _EchoPeaks, t: _EchoTerms,
                map_sigma: NDArray[np.float64] | None = None,
-               amplitude: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+               amplitude: NDArray[np.float64] | None = None,
+               parallel: bool = False) -> NDArray[np.float64]:
     """Allocate the (n, 3) output and run :func:`_echo_kernel` (NaN padding read as 0 by the
     kernel, as ``nan_to_num``; ``map_sigma`` None: no map uncertainty; ``amplitude`` None:
-    ``pa`` is also the heard echo's amplitude)."""
+    ``pa`` is also the heard echo's amplitude; ``parallel``: over numba's threads, the same
+    numbers)."""
     out = np.empty((count.shape[0], 3), dtype=np.float64)
     ps = np.zeros_like(pr) if map_sigma is None else map_sigma
     pl = pa if amplitude is None else amplitude
-    _echo_kernel(np.ascontiguousarray(count, dtype=np.int64),
-                 np.ascontiguousarray(pr, dtype=np.float64),
-                 np.ascontiguousarray(pc, dtype=np.float64),
-                 np.ascontiguousarray(pa, dtype=np.float64),
-                 np.ascontiguousarray(ps, dtype=np.float64),
-                 np.ascontiguousarray(pl, dtype=np.float64), m, t, out)
+    kernel = _echo_kernel_parallel if parallel else _echo_kernel
+    kernel(np.ascontiguousarray(count, dtype=np.int64),
+           np.ascontiguousarray(pr, dtype=np.float64),
+           np.ascontiguousarray(pc, dtype=np.float64),
+           np.ascontiguousarray(pa, dtype=np.float64),
+           np.ascontiguousarray(ps, dtype=np.float64),
+           np.ascontiguousarray(pl, dtype=np.float64), m, t, out)
     return out
 
 
@@ -356,29 +407,64 @@ def _bounce_point(points: NDArray[np.float64], i: int, j: int, r: int) -> tuple[
 
 
 @numba.njit(**NUMBA_FLAGS)
+def _end_weights_row(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
+                     wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                     out: NDArray[np.float64], i: int) -> None:
+    """Row i of :func:`_end_weights_kernel`."""
+    for j in range(wall_idx.shape[1]):
+        w = 1.0
+        for r in range(wall_idx.shape[2]):
+            wi = wall_idx[i, j, r]
+            if wi < 0:
+                continue
+            ax, ay = seg[wi, 0, 0], seg[wi, 0, 1]
+            bx, by = seg[wi, 1, 0], seg[wi, 1, 1]
+            length = max(math.hypot(bx - ax, by - ay), 1e-12)
+            ux, uy = (bx - ax) / length, (by - ay) / length
+            px, py = _bounce_point(points, i, j, r)
+            if end_sigma[wi, 0] > 0:
+                w *= _ndtr(((px - ax) * ux + (py - ay) * uy) / end_sigma[wi, 0])
+            if end_sigma[wi, 1] > 0:
+                w *= _ndtr(((bx - px) * ux + (by - py) * uy) / end_sigma[wi, 1])
+        out[i, j] = w
+
+
+@numba.njit(**NUMBA_FLAGS)
 def _end_weights_kernel(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
                         wall_idx: NDArray[np.int64], points: NDArray[np.float64],
                         out: NDArray[np.float64]) -> None:
     """``out[i, j]`` = product over the bounces of echo (i, j) of ``Phi(s0 / sigma0)
     Phi(s1 / sigma1)`` (see ``_tables.end_weights``); a NaN point counts as the origin."""
-    n, k, kk = wall_idx.shape
-    for i in range(n):
-        for j in range(k):
-            w = 1.0
-            for r in range(kk):
-                wi = wall_idx[i, j, r]
-                if wi < 0:
-                    continue
-                ax, ay = seg[wi, 0, 0], seg[wi, 0, 1]
-                bx, by = seg[wi, 1, 0], seg[wi, 1, 1]
-                length = max(math.hypot(bx - ax, by - ay), 1e-12)
-                ux, uy = (bx - ax) / length, (by - ay) / length
-                px, py = _bounce_point(points, i, j, r)
-                if end_sigma[wi, 0] > 0:
-                    w *= _ndtr(((px - ax) * ux + (py - ay) * uy) / end_sigma[wi, 0])
-                if end_sigma[wi, 1] > 0:
-                    w *= _ndtr(((bx - px) * ux + (by - py) * uy) / end_sigma[wi, 1])
-            out[i, j] = w
+    for i in range(wall_idx.shape[0]):
+        _end_weights_row(seg, end_sigma, wall_idx, points, out, i)
+
+
+@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _end_weights_kernel_parallel(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
+                                 wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                                 out: NDArray[np.float64]) -> None:
+    """:func:`_end_weights_kernel` over numba's threads (the same numbers)."""
+    for i in numba.prange(wall_idx.shape[0]):
+        _end_weights_row(seg, end_sigma, wall_idx, points, out, i)
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _map_sigma_row(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
+                   wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                   out: NDArray[np.float64], i: int) -> None:
+    """Row i of :func:`_map_sigma_kernel`."""
+    for j in range(wall_idx.shape[1]):
+        var = 0.0
+        for r in range(wall_idx.shape[2]):
+            wi = wall_idx[i, j, r]
+            if wi < 0:
+                continue
+            mx = 0.5 * (seg[wi, 0, 0] + seg[wi, 1, 0])
+            my = 0.5 * (seg[wi, 0, 1] + seg[wi, 1, 1])
+            px, py = _bounce_point(points, i, j, r)
+            along = math.hypot(px - mx, py - my)
+            var += wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2
+        out[i, j] = math.sqrt(var)
 
 
 @numba.njit(**NUMBA_FLAGS)
@@ -387,43 +473,47 @@ def _map_sigma_kernel(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
                       out: NDArray[np.float64]) -> None:
     """``out[i, j]`` = sqrt of the sum over the bounces of echo (i, j) of ``o**2 + (s a)**2``
     (see ``_echo.map_range_sigma``); a NaN point counts as the origin."""
-    n, k, kk = wall_idx.shape
-    for i in range(n):
-        for j in range(k):
-            var = 0.0
-            for r in range(kk):
-                wi = wall_idx[i, j, r]
-                if wi < 0:
-                    continue
-                mx = 0.5 * (seg[wi, 0, 0] + seg[wi, 1, 0])
-                my = 0.5 * (seg[wi, 0, 1] + seg[wi, 1, 1])
-                px, py = _bounce_point(points, i, j, r)
-                along = math.hypot(px - mx, py - my)
-                var += wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2
-            out[i, j] = math.sqrt(var)
+    for i in range(wall_idx.shape[0]):
+        _map_sigma_row(seg, wall_sigma, wall_idx, points, out, i)
+
+
+@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _map_sigma_kernel_parallel(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
+                               wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                               out: NDArray[np.float64]) -> None:
+    """:func:`_map_sigma_kernel` over numba's threads (the same numbers)."""
+    for i in numba.prange(wall_idx.shape[0]):
+        _map_sigma_row(seg, wall_sigma, wall_idx, points, out, i)
 
 
 def end_weight_rows(seg: NDArray[np.float64], end_sigma: NDArray[np.float64],
-                    wall_idx: NDArray[np.int64], points: NDArray[np.float64]
-                    ) -> NDArray[np.float64]:
+                    wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                    parallel: bool = False) -> NDArray[np.float64]:
     """:func:`_end_weights_kernel` over (n, k, K) bounces (any leading shape of wall_idx[..., K]
-    is flattened to rows)."""
+    is flattened to rows; ``parallel``: over numba's threads, the same numbers)."""
     lead = wall_idx.shape[:-1]
-    idx = np.ascontiguousarray(wall_idx.reshape(-1, 1, wall_idx.shape[-1]), dtype=np.int64)
-    pts = np.ascontiguousarray(points.reshape(-1, 1, points.shape[-2], 2), dtype=np.float64)
-    out = np.empty((idx.shape[0], 1))
-    _end_weights_kernel(np.ascontiguousarray(seg, dtype=np.float64),
-                        np.ascontiguousarray(end_sigma, dtype=np.float64), idx, pts, out)
+    if wall_idx.ndim == 3:   # (n, k, K) as an echo batch gives it: read in place, no copy
+        idx = np.asarray(wall_idx, dtype=np.int64)
+        pts = np.asarray(points, dtype=np.float64)
+    else:
+        idx = np.ascontiguousarray(wall_idx.reshape(-1, 1, wall_idx.shape[-1]), dtype=np.int64)
+        pts = np.ascontiguousarray(points.reshape(-1, 1, points.shape[-2], 2), dtype=np.float64)
+    out = np.empty(idx.shape[:2])
+    kernel = _end_weights_kernel_parallel if parallel else _end_weights_kernel
+    kernel(np.ascontiguousarray(seg, dtype=np.float64),
+           np.ascontiguousarray(end_sigma, dtype=np.float64), idx, pts, out)
     return out.reshape(lead)
 
 
 def map_sigma_rows(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
-                   wall_idx: NDArray[np.int64], points: NDArray[np.float64]
-                   ) -> NDArray[np.float64]:
-    """:func:`_map_sigma_kernel` over (n, k, K) bounces."""
+                   wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                   parallel: bool = False) -> NDArray[np.float64]:
+    """:func:`_map_sigma_kernel` over (n, k, K) bounces (``parallel``: over numba's threads,
+    the same numbers)."""
     out = np.empty(wall_idx.shape[:2])
-    _map_sigma_kernel(np.ascontiguousarray(seg, dtype=np.float64),
-                      np.ascontiguousarray(wall_sigma, dtype=np.float64),
-                      np.ascontiguousarray(wall_idx, dtype=np.int64),
-                      np.ascontiguousarray(points, dtype=np.float64), out)
+    kernel = _map_sigma_kernel_parallel if parallel else _map_sigma_kernel
+    kernel(np.ascontiguousarray(seg, dtype=np.float64),
+           np.ascontiguousarray(wall_sigma, dtype=np.float64),
+           np.asarray(wall_idx, dtype=np.int64),      # an echo batch's slice: read in place
+           np.asarray(points, dtype=np.float64), out)
     return out

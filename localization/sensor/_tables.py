@@ -423,18 +423,19 @@ def _ray_hits(p: FloatArray, d: FloatArray, s: FloatArray) -> float | None:
 
 
 def end_weights(walls: WallSet, end_sigma: FloatArray, wall_idx: NDArray[np.int64],
-                points_m: FloatArray) -> FloatArray:
+                points_m: FloatArray, parallel: bool = False) -> FloatArray:
     """Probability that the fitted wall reaches each bounce point: for the bounce on wall
     w at P, ``Phi(s0 / sigma0) Phi(s1 / sigma1)`` with ``s0, s1`` the distances from P to
     the fitted ends of ``walls`` (not run on) along it, positive inside; 1 for joined ends.
     Product over a path's bounces; ``wall_idx`` (..., K) with -1 padding, ``points_m``
     (..., K, 2). numba kernel (``_kernels._end_weights_kernel``); its numpy twin is in
-    ``tests/localization/sensor/naive.py``."""
+    ``tests/localization/sensor/naive.py``; ``parallel``: over numba's threads, the same
+    numbers)."""
     if not np.any(end_sigma > 0):
         return np.ones(wall_idx.shape[:-1])
     return end_weight_rows(np.asarray(walls.segments_m, dtype=np.float64).reshape(-1, 2, 2),
                            np.asarray(end_sigma, dtype=np.float64), np.asarray(wall_idx),
-                           np.asarray(points_m, dtype=np.float64))
+                           np.asarray(points_m, dtype=np.float64), parallel)
 
 
 def uniform_free_poses(tables: SensorTables, n: int, rng: np.random.Generator) -> FloatArray:

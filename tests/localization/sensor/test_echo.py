@@ -93,13 +93,12 @@ def _tolerance(peaks: _EchoPeaks, terms: _EchoTerms, n_pred: int) -> float:
     return 1e-9 + float(np.sum(peaks.w)) * per_peak + n_pred * per_echo
 
 
-def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool
+def _random_case(seed: int, n_meas: int, kmax: int, use_cos: bool, n: int = 6
                  ) -> tuple[NDArray[np.int64], FloatArray, FloatArray, FloatArray, _EchoPeaks,
                             _EchoTerms]:
     """Random poses' echoes (NaN padded past ``count``), half of them near a measured peak,
     some outside the range window, some with negative amplitude."""
     rng = np.random.default_rng(seed)
-    n = 6
     meas_r = rng.uniform(0.1, 5.5, n_meas)
     meas_c = rng.uniform(-1.0, 1.0, n_meas)
     w = np.where(rng.random(n_meas) < 0.2, 0.0, rng.uniform(0.0, 2.0, n_meas))
@@ -142,6 +141,21 @@ def test_echo_kernel_matches_naive_twin(seed: int, n_meas: int, kmax: int, use_c
                                atol=_tolerance(peaks, terms, kmax))
     np.testing.assert_allclose(got[:, 1:], want[:, 1:], rtol=0, atol=1e-9 + KAPPA_CUT)
     assert np.all((got[:, 1:] >= 0.0) & (got[:, 1:] <= 1.0 + 1e-12))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), n_meas=st.integers(0, 7),
+       kmax=st.integers(0, 7), use_cos=st.booleans())
+def test_echo_kernel_parallel_twin_gives_the_same_numbers(seed: int, n: int, n_meas: int,
+                                                          kmax: int, use_cos: bool) -> None:
+    """The parallel echo kernel (chunks of poses over numba's threads) against the serial
+    one: every pose's arithmetic is the same, so the numbers are equal bit for bit, over
+    chunk boundaries and for an empty set."""
+    count, pr, pc, pa, peaks, terms = _random_case(seed, n_meas, kmax, use_cos, n)
+    ms = np.random.default_rng(seed + 1).uniform(0.0, 0.05, pr.shape)
+    serial = score_echo(count, pr, pc, pa, peaks, terms, ms, parallel=False)
+    np.testing.assert_array_equal(score_echo(count, pr, pc, pa, peaks, terms, ms,
+                                             parallel=True), serial)
 
 
 def test_echo_kernel_edge_cases() -> None:
@@ -558,7 +572,7 @@ def test_tables_read_the_wall_end_sigmas_of_a_built_map() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(1, 6), st.integers(1, 5), st.integers(1, 7), st.integers(1, 3),
+@given(st.integers(1, 6), st.integers(1, 40), st.integers(1, 7), st.integers(1, 3),
        st.integers(0, 2**32 - 1))
 def test_map_uncertainty_kernels_match_their_numpy_twins(n_walls: int, n: int, k: int,
                                                          order: int, seed: int) -> None:
@@ -580,6 +594,18 @@ def test_map_uncertainty_kernels_match_their_numpy_twins(n_walls: int, n: int, k
                                atol=1e-15)
     np.testing.assert_allclose(map_sigma_rows(seg, sig, idx, pts),
                                map_sigma_numpy(seg, sig, idx, pts), rtol=1e-12, atol=1e-15)
+    # an echo batch hands them slices of wider arrays (read in place): the same numbers
+    wide_idx = np.concatenate([idx, np.full_like(idx, -1)], axis=1)[:, :k]
+    wide_pts = np.concatenate([pts, np.full_like(pts, np.nan)], axis=1)[:, :k]
+    np.testing.assert_array_equal(end_weight_rows(seg, sig[:, 1:], wide_idx, wide_pts),
+                                  end_weight_rows(seg, sig[:, 1:], idx, pts))
+    np.testing.assert_array_equal(map_sigma_rows(seg, sig, wide_idx, wide_pts),
+                                  map_sigma_rows(seg, sig, idx, pts))
+    # their parallel twins: the same numbers
+    np.testing.assert_array_equal(end_weight_rows(seg, sig[:, 1:], idx, pts, parallel=True),
+                                  end_weight_rows(seg, sig[:, 1:], idx, pts))
+    np.testing.assert_array_equal(map_sigma_rows(seg, sig, idx, pts, parallel=True),
+                                  map_sigma_rows(seg, sig, idx, pts))
 
 
 def test_floor_and_ceiling_copies_explain_the_ghosts_of_a_3d_room() -> None:
