@@ -112,7 +112,6 @@ def with_vertical(batch: EchoBatch, dz_m: FloatArray, reflection: FloatArray) ->
         count=batch.count * copies,
         range_m=stack(batch.range_m, r3),
         cos_doppler=cos,
-        angle_rad=np.arccos(np.clip(cos, -1.0, 1.0)),
         amplitude=stack(batch.amplitude,
                         batch.amplitude[:, :, None] * refl[None, None] * ratio**p),
         order=np.repeat(batch.order, copies, axis=1),
