@@ -63,7 +63,10 @@ Run: ``python -m benchmarks.localization_echo [--quick] [--seeds S] [--only SCEN
 On two cores the full run takes about 1.5 h; split it: ``NUMBA_NUM_THREADS=1 ... --part 1/2``
 and ``... --part 2/2`` side by side, then ``... --resume`` alone, which merges the parts, times
 every run again alone (tracked run and first global start; the parts' timing is kept as
-``timing_in_part``) and runs the sweep.
+``timing_in_part``; both trials must reproduce the parts' results, counted in the result's
+``reproduced``) and runs the sweep. After a change meant to alter speed only,
+``... --resume --reuse-accuracy`` reuses parts written by the previous library (their digests
+are recorded) and re-times: the reproduction check is then what vouches for the reused accuracy.
 """
 
 from __future__ import annotations
