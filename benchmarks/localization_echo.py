@@ -12,7 +12,8 @@ model only). Every OTHER path of the scene is localized: simulated at SNR 10 dB 
 N(0, 0.005 rad/s); the heat maps are made with the noisy speed, as a robot would). The image-
 source engine runs with the automatic order capped at 3 and paths up to 12 m (as
 ``benchmarks.wall_maps``: ``max_path_m``). Runs and maps are cached in
-``out/localization_echo/`` (simulation and map building are never timed).
+``out/localization_echo/`` (simulation and map building are never timed; a map's cache key
+includes the source of ``mapping/``, so a changed builder builds the maps again).
 
 Variants: ``echo-ideal`` (echo model, true walls), ``echo-built`` (echo model, walls map),
 ``G-built`` (correlation model, paper map); 2000 particles, default filter settings.
@@ -73,6 +74,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -294,7 +296,7 @@ def scene_maps(case: SceneCase) -> dict[str, WallMap | str]:
         out["ideal"] = f"{type(exc).__name__}: {exc}"
     run, digest = simulated(case, case.map_path, MAP_SPEED_M_S, None)
     for method in ("walls", "paper"):
-        file = CACHE / "maps" / f"{case.name}_{method}_{digest}.npz"
+        file = CACHE / "maps" / f"{case.name}_{method}_{digest}_{mapping_digest()}.npz"
         if file.exists():
             out[method] = read_map(file)
             continue
@@ -908,15 +910,24 @@ def write_json(path: Path, obj: Any) -> None:
     atomic_write(path, lambda fh: fh.write(data), private=False)
 
 
-def source_digest() -> str:
-    """SHA-1 of the library's source (``localization/``, ``mapping/``): which code was
-    measured, without git; a change during the run is flagged."""
+def source_digest(packages: Sequence[str] = ("localization", "mapping")) -> str:
+    """SHA-1 of the library's source (``localization/``, ``mapping/`` by default): which code
+    was measured, without git; a change during the run is flagged."""
     h = hashlib.sha1()
-    for pkg in ("localization", "mapping"):
+    for pkg in packages:
         for f in sorted((ROOT / pkg).rglob("*.py")):
             h.update(str(f.relative_to(ROOT)).encode())
             h.update(f.read_bytes())
     return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def mapping_digest() -> str:
+    """The first 10 hex digits of :func:`source_digest` of ``mapping/`` alone, read once per
+    process: part of a cached map's name, so a change to the map builder (or anything else
+    in ``mapping/``) builds the maps again instead of reusing the old ones (it did reuse
+    them, silently, while the key was the mapping run alone)."""
+    return source_digest(("mapping",))[:10]
 
 
 def environment() -> dict[str, Any]:
