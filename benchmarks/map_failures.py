@@ -73,6 +73,7 @@ from localization.sensor import (
     predicted_echoes,
     prepare_measurement,
 )
+from mapping.heatmap import HeatMap
 from mapping.quality import distance_to_walls
 from mapping.wallmap import WallMap
 
@@ -183,28 +184,28 @@ def edited_map(wm: WallMap, drop: Sequence[int], add: FloatArray) -> WallMap:
         provenance={**wm.provenance, "fit": fit})
 
 
-def counterfactual_gaps(wm: WallMap, ideal: SensorTables, lr: LocRun, k: int,
+def estimate_gap(tables: SensorTables, hm: HeatMap, truth: FloatArray, est: FloatArray
+                 ) -> float:
+    """How much better ``est`` explains the block ``hm`` than ``truth`` on ``tables``'s map
+    (echo log-likelihood, nats; > 0: the map prefers the estimate)."""
+    ll = explanation(tables, prepare_measurement(hm, tables.config),
+                     np.vstack([truth, est])).log_likelihood
+    return float(ll[1] - ll[0])
+
+
+def counterfactual_gaps(wm: WallMap, ideal: SensorTables, lr: LocRun, hm: HeatMap,
                         truth: FloatArray, est: FloatArray, ghost_walls: Sequence[int],
                         missing_walls: Sequence[int]) -> dict[str, float | None]:
-    """How much better the estimate explains block ``k`` than the truth (nats; > 0: the map
-    prefers the estimate) on the built map, without its blamed ghost walls, with the true
-    walls it misses added, and both."""
-    hm = lr.feed.hms[k]
-    if hm is None:
-        return {}
+    """:func:`estimate_gap` of the block ``hm`` on the built map ``wm`` without its blamed
+    ghost walls, with the true walls it misses added, and both (None where a map's tables
+    cannot be built)."""
     true_seg = np.asarray(ideal.walls.segments_m, dtype=np.float64).reshape(-1, 4)
     add = true_seg[list(missing_walls)] if missing_walls else np.zeros((0, 4))
     out: dict[str, float | None] = {}
-    for name, drop, extra in (("built", [], np.zeros((0, 4))),
-                              ("without_ghosts", ghost_walls, np.zeros((0, 4))),
+    for name, drop, extra in (("without_ghosts", ghost_walls, np.zeros((0, 4))),
                               ("with_missing", [], add), ("both", ghost_walls, add)):
         tab = make_tables(edited_map(wm, drop, extra), "echo", lr.sonar)
-        if isinstance(tab, str):
-            out[name] = None
-            continue
-        ll = explanation(tab, prepare_measurement(hm, tab.config),
-                         np.vstack([truth, est])).log_likelihood
-        out[name] = float(ll[1] - ll[0])
+        out[name] = None if isinstance(tab, str) else estimate_gap(tab, hm, truth, est)
     return out
 
 
@@ -251,12 +252,11 @@ def run_faults(built: SensorTables, ideal: SensorTables, lr: LocRun, images: Ima
         f["block"] = j
         blocks.append(f)
     hm = lr.feed.hms[k]
-    prefers: dict[str, bool | None] = {"built": None, "ideal": None}
+    gaps: dict[str, float | None] = {}
+    ideal_gap: float | None = None
     if hm is not None:
-        both = np.vstack([truth, est])
-        for name, tab in (("built", built), ("ideal", ideal)):
-            ll = explanation(tab, prepare_measurement(hm, tab.config), both).log_likelihood
-            prefers[name] = bool(ll[1] > ll[0])
+        gaps["built"] = estimate_gap(built, hm, truth, est)
+        ideal_gap = estimate_gap(ideal, hm, truth, est)
     ghost_walls = sorted({w for b in blocks for e in b["ghost_echoes"]
                           for w in e["off_true_walls"]})
     occluded = sum(not e["off_true_walls"] for b in blocks for e in b["ghost_echoes"])
@@ -265,13 +265,15 @@ def run_faults(built: SensorTables, ideal: SensorTables, lr: LocRun, images: Ima
     missing = sum(len(b["missing_peaks"]) for b in blocks)
     cause = ("ghost and missing" if ghosts and missing else "ghost" if ghosts
              else "missing" if missing else "neither")
-    gaps = counterfactual_gaps(wm, ideal, lr, k, truth, est, ghost_walls, missing_walls)
+    built_gap = gaps.get("built")
+    if hm is not None:
+        gaps |= counterfactual_gaps(wm, ideal, lr, hm, truth, est, ghost_walls, missing_walls)
     repair = repair_class(gaps)
     out.update({
         "first_lost_block": k, "blocks": lr.feed.n,
         "error_m": float(pos[k]), "error_deg": math.degrees(float(head[k])),
-        "built_map_prefers_estimate": prefers["built"],
-        "ideal_map_prefers_estimate": prefers["ideal"],
+        "built_map_prefers_estimate": None if built_gap is None else bool(built_gap > 0.0),
+        "ideal_map_prefers_estimate": None if ideal_gap is None else bool(ideal_gap > 0.0),
         "ghost_echoes": ghosts, "ghost_echoes_on_true_walls": occluded,
         "missing_peaks": missing, "cause": cause,
         "ghost_walls": [{"wall": w, "support": float(support[w])} for w in ghost_walls],
