@@ -211,18 +211,21 @@ def counterfactual_gaps(wm: WallMap, ideal: SensorTables, lr: LocRun, hm: HeatMa
 
 #: What a lost run's first lost block needs for the map to prefer the truth again.
 REPAIRS = ("map prefers the truth", "removing the ghosts", "adding the missing walls",
-           "either", "both", "neither")
+           "either", "both", "neither", "no heat map at that block")
 
 
 def repair_class(gaps: dict[str, float | None]) -> str:
     """Which counterfactual map (:func:`counterfactual_gaps`) prefers the truth: none needed
     (the built map already does: the filter drifted), removing the ghost walls, adding the
-    missing walls, either one alone, only both together, or neither."""
+    missing walls, either one alone, only both together, or neither; a first lost block
+    without a heat map says so instead of being counted as any of these."""
     def truth(name: str) -> bool:
         g = gaps.get(name)
         return g is not None and g <= 0.0
 
-    if not gaps or truth("built"):
+    if gaps.get("built") is None:
+        return REPAIRS[6]   # a silent block: nothing to compare
+    if truth("built"):
         return REPAIRS[0]
     a, b = truth("without_ghosts"), truth("with_missing")
     return (REPAIRS[3] if a and b else REPAIRS[1] if a else REPAIRS[2] if b
