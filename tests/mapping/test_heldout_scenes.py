@@ -37,6 +37,7 @@ FRESH14K = ("parlour", "bakery", "boathouse")  # written at the start of session
 FRESH14L = ("pantry", "arcadia", "scullery")  # written at the start of session 34: "fresh14l"
 FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session 35: "fresh14m"
 FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37: "fresh14n"
+FRESH14O = ("theatre", "stacks", "laundry")  # written in session 39: "fresh14o"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -110,6 +111,10 @@ INTERIOR = {
     "nursery": [(4.6, 0.0), (11.0, 4.0), (4.6, 8.0), (0.0, 4.0)],
     "smithy": [(0.0, 0.0), (8.4, 0.0), (8.4, 6.0), (5.0, 6.0), (5.0, 5.1), (3.4, 5.1), (3.4, 6.0),
                (0.0, 6.0)],
+    "theatre": [(0.0, 2.0), (8.0, 0.0), (8.3689, 1.9849), (8.4924, 4.0), (8.3689, 6.0151),
+                (8.0, 8.0), (0.0, 6.0)],
+    "stacks": [(0.0, 0.0), (9.0, 0.0), (9.0, 6.4), (0.4, 6.4)],
+    "laundry": [(0.0, 0.0), (8.0, 0.0), (8.0, 4.2), (5.0, 6.8), (1.2, 6.8), (0.0, 5.6)],
 }
 
 
@@ -150,7 +155,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14H) <= set(SCENES) and set(FRESH14I) <= set(SCENES)
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
     assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
-    assert set(FRESH14N) <= set(SCENES)
+    assert set(FRESH14N) <= set(SCENES) and set(FRESH14O) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -167,7 +172,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14k" if spec.scene in FRESH14K
                     else "fresh14l" if spec.scene in FRESH14L
                     else "fresh14m" if spec.scene in FRESH14M
-                    else "fresh14n" if spec.scene in FRESH14N else "held-out")
+                    else "fresh14n" if spec.scene in FRESH14N
+                    else "fresh14o" if spec.scene in FRESH14O else "held-out")
         assert spec.group == expected
 
 
@@ -580,7 +586,8 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
 
 @pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
     ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
-    ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0)])
+    ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0),
+    ("fresh14o", FRESH14O, 7.0)])
 def test_a_fresh_groups_nine_paths_have_their_length(
         group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
     """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
@@ -1379,6 +1386,167 @@ def test_smithy_has_a_chimney_breast_a_curtain_and_a_hearth_hiding_a_strip() -> 
     _line_in_sight("smithy-line", "smithy-curve", curve, segments)
 
 
+def _closed_block(segments: np.ndarray, sides: list[float]) -> None:
+    """``segments`` (4, 2, 2) run round one closed block whose sides have the lengths ``sides``."""
+    assert len(segments) == 4 and np.allclose(segments[:, 1], np.roll(segments[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1), sides, atol=1e-3)
+
+
+def test_theatre_is_a_fan_with_a_curved_back_a_doorway_and_a_bench_hiding_a_strip() -> None:
+    theatre = heldout_scene("theatre")
+    walls = {w.name: w for w in theatre.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "stage": 0.4}                              # the stage curtain
+    outline, interior = _outline("theatre", 7)     # closed across the doorway
+    assert np.allclose(interior, [104.04, 86.49, 172.98, 172.98, 172.98, 86.49, 104.04],
+                       atol=0.02)
+    assert np.all(np.abs(interior - 90.0) > 3.5)   # no right angle
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 50.47, atol=0.01)
+    # a fan: the side walls splay from an apex 8.0 m behind the stage, the back wall four equal
+    # chords of the circle about that apex through the back corners
+    apex = np.array([-8.0, 4.0])
+    back = np.array([walls[f"back {k}"].start for k in (1, 2, 3, 4)] + [walls["back 4"].end])
+    assert np.allclose(np.linalg.norm(back - apex, axis=1), np.hypot(16.0, 4.0), atol=1e-4)
+    assert np.allclose([walls[f"back {k}"].length_m for k in (1, 2, 3, 4)], 2.019, atol=1e-3)
+    for first, last in ((walls["south"].start, walls["south"].end),
+                        (walls["north east"].start, walls["north west"].end)):
+        to_apex, to_end = apex - np.array(first), np.array(last) - np.array(first)
+        assert abs(to_end[0] * to_apex[1] - to_end[1] * to_apex[0]) < 1e-9
+    # mirrored about the axis y = 4.0 the outline is itself: the doorway and the bench break it
+    mirrored = outline * [1.0, -1.0] + [0.0, 8.0]
+    assert np.abs(mirrored[:, None] - outline[None]).sum(axis=2).min(axis=1).max() < 1e-9
+    # the doorway: 0.9 m of the north wall, 1.3-2.2 m from the back corner, nothing beyond
+    segments = theatre.segments()
+    gap = np.array([walls["north east"].end, walls["north west"].start])
+    assert np.isclose(np.linalg.norm(gap[1] - gap[0]), 0.9, atol=1e-4)  # 4-decimal corners
+    assert np.isclose(np.linalg.norm(gap[0] - outline[5]), 1.3, atol=1e-4)
+    normal = np.array([outline[6][1] - outline[5][1], outline[5][0] - outline[6][0]])  # outwards
+    assert np.all((segments.reshape(-1, 2) - outline[5]) @ normal < 1e-3)
+    # the bench: a closed rigid 2.2 m x 0.8 m block, its long sides parallel to the south wall,
+    # 1.3 m off it, standing free
+    is_bench = np.array([n.startswith("bench") for n in names])
+    bench = segments[is_bench]
+    _closed_block(bench, [2.2, 0.8] * 2)
+    directions = _directions_deg("theatre")
+    south = names.index("south")
+    assert np.allclose(directions[[names.index("bench south"), names.index("bench north")]],
+                       directions[south], atol=0.01)
+    assert np.isclose(distance_to_walls(bench[:, 0], segments[south][None]).min(), 1.3, atol=1e-3)
+    assert distance_to_walls(bench[:, 0], segments[~is_bench]).min() > 1.29
+    # the mapped curve: the north part only, past the doorway; 0.9 m of the strip between the
+    # bench and the south wall, 0.65 m off the wall, is out of its sight (control: without the
+    # bench all in sight)
+    curve = _positions("theatre-curve")
+    assert curve[:, 1].min() > 4.15
+    assert distance_to_walls(curve, gap[None]).min() < 1.05  # passes the doorway
+    along = (segments[south][1] - segments[south][0]) / walls["south"].length_m
+    inward = np.array([-along[1], along[0]])
+    strip = segments[south][0] + np.linspace(5.0, 5.9, 15)[:, None] * along + 0.65 * inward
+    assert distance_to_walls(strip, segments).min() > 0.64
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_bench]).all()
+    # theatre-south: down that strip, more than 1.2 m of it out of the curve's sight
+    assert distance_to_walls(_positions("theatre-south"), bench).min() < 0.65
+    _leaves_sight("theatre-south", curve, segments, ~is_bench, hidden_m=1.2, far_m=3.4)
+    # theatre-line: across the room over the bench, all of it in the curve's sight, at least
+    # 50 deg from every heading of the curve
+    _line_in_sight("theatre-line", "theatre-curve", curve, segments)
+
+
+def test_stacks_have_two_shelves_making_look_alike_aisles_and_hiding_the_north_one() -> None:
+    stacks = heldout_scene("stacks")
+    walls = {w.name: w for w in stacks.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "east": 0.85}                              # the glazed east wall
+    outline, interior = _outline("stacks", 4)
+    lean = np.degrees(np.arctan2(0.4, 6.4))       # the west wall leans out 0.4 m over 6.4 m
+    assert np.isclose(interior[0], 90.0 - lean) and np.isclose(interior[3], 90.0 + lean)
+    assert np.allclose(interior[[1, 2]], 90.0)     # only the east corners square
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 56.32)
+    segments = stacks.segments()
+    # two closed rigid 4.0 m x 0.4 m shelves parallel to the south wall, standing free, making
+    # three aisles 2.0, 1.6 and 2.0 m wide over their length
+    shelves = [segments[[n.startswith(f"shelf {k} ") for n in names]] for k in "AB"]
+    for shelf in shelves:
+        _closed_block(shelf, [4.0, 0.4] * 2)
+    is_shelf = np.array([n.startswith("shelf") for n in names])
+    room = segments[~is_shelf]
+    assert distance_to_walls(segments[is_shelf].reshape(-1, 2), room).min() > 1.99
+    assert np.allclose([shelves[0][:, :, 1].min(), shelves[1][:, :, 1].min() - 2.4,
+                        6.4 - shelves[1][:, :, 1].max()], [2.0, 1.6, 2.0])
+    # mirrored about y = 3.2 the shelves land on each other and only the leaning west wall
+    # (with the south wall's first 0.4 m) moves off, by up to 0.4 m
+    on_walls = np.concatenate([np.linspace(a, b, 201) for a, b in segments])
+    moved = distance_to_walls(on_walls * [1.0, -1.0] + [0.0, 6.4], segments)
+    assert np.isclose(moved.max(), 0.4 * 6.4 / np.hypot(0.4, 6.4), atol=0.01)
+    assert np.all(on_walls[moved > 1e-6, 0] < 0.4 + 1e-9)
+    # the mapped curve: the west end and the south aisle, never north of the middle aisle; the
+    # north aisle's middle, y = 5.4, x 4.2-6.0, is out of its sight (control: without the
+    # shelves all in sight)
+    curve = _positions("stacks-curve")
+    assert curve[:, 1].max() < 3.45 and curve[:, 0].min() < 1.2
+    strip = np.column_stack([np.linspace(4.2, 6.0, 15), np.full(15, 5.4)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_shelf]).all()
+    # stacks-north: up the east end and west down the north aisle, more than 1.7 m of it out of
+    # the curve's sight
+    assert _positions("stacks-north")[:, 1].max() > 5.0
+    _leaves_sight("stacks-north", curve, segments, ~is_shelf, hidden_m=1.7, far_m=4.5)
+    # stacks-line: west down the middle aisle, all of it in the curve's sight, at least 50 deg
+    # from every heading of the curve
+    line = _positions("stacks-line", 300)
+    assert np.all((line[:, 1] > 2.4 + 0.5) & (line[:, 1] < 4.0 - 0.5))
+    _line_in_sight("stacks-line", "stacks-curve", curve, segments)
+
+
+def test_laundry_is_open_at_a_corner_and_has_a_free_standing_corner_screen() -> None:
+    laundry = heldout_scene("laundry")
+    walls = {w.name: w for w in laundry.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "north-east": 0.85}                        # the glazed north-east wall
+    outline, interior = _outline("laundry", 6)     # closed across the open corner
+    assert np.allclose(interior, [90.0, 90.0, 130.91, 139.09, 135.0, 135.0], atol=0.01)
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 49.78)
+    segments = laundry.segments()
+    # the open corner: the north and west walls stop 1.2 m short of their corner, a mouth of
+    # 1.70 m with nothing beyond (every wall on the room's side of it)
+    mouth = np.array([walls["north"].end, walls["west"].start])
+    assert np.isclose(np.linalg.norm(mouth[1] - mouth[0]), 1.2 * np.sqrt(2.0))
+    normal = np.array([mouth[1][1] - mouth[0][1], mouth[0][0] - mouth[1][0]])  # outwards
+    assert np.all((segments.reshape(-1, 2) - mouth[0]) @ normal < 1e-9)
+    # the screen: two rigid 1.3 m panels meeting at a right angle, their corner 2.6 m from the
+    # south and east walls, both other ends free, 1.3 m from those walls
+    is_screen = np.array([n.startswith("screen") for n in names])
+    screen = segments[is_screen]
+    assert np.allclose(screen[:, 0], screen[0, 0])  # one shared corner
+    assert np.allclose(np.linalg.norm(screen[:, 1] - screen[:, 0], axis=1), 1.3)
+    assert np.isclose(np.dot(*(screen[:, 1] - screen[:, 0])), 0.0)
+    assert np.isclose(distance_to_walls(screen[:1, 0], segments[~is_screen])[0], 2.6)
+    assert np.isclose(distance_to_walls(screen[:, 1], segments[~is_screen]).min(), 1.3)
+    # the mapped curve: the west part only, past the open corner (within 1.0 m of its mouth);
+    # a line 0.7 m below the screen's east panel, x 5.8-7.0, is out of its sight (control:
+    # without the screen all in sight)
+    curve = _positions("laundry-curve")
+    assert curve[:, 0].max() < 4.65 and curve[:, 1].min() > 1.35
+    assert distance_to_walls(curve, mouth[None]).min() < 1.0
+    strip = np.column_stack([np.linspace(5.8, 7.0, 15), np.full(15, 1.9)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_screen]).all()
+    # laundry-pocket: into the pocket the screen closes off, more than 1.2 m of it out of the
+    # curve's sight
+    assert distance_to_walls(_positions("laundry-pocket"), screen).min() < 0.65
+    _leaves_sight("laundry-pocket", curve, segments, ~is_screen, hidden_m=1.2, far_m=3.9)
+    # laundry-line: straight across past the screen's corner, all of it in the curve's sight, at
+    # least 50 deg from every heading of the curve
+    _line_in_sight("laundry-line", "laundry-curve", curve, segments)
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1405,7 +1573,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14k": FRESH14B_CLEARANCE_M,
                  "fresh14l": FRESH14B_CLEARANCE_M,
                  "fresh14m": FRESH14B_CLEARANCE_M,
-                 "fresh14n": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14n": FRESH14B_CLEARANCE_M,
+                 "fresh14o": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
