@@ -41,6 +41,8 @@ FloatArray = NDArray[np.float64]
 
 _STENCIL = np.stack(np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0],
                                 indexing="ij"), axis=-1).reshape(-1, 3)
+_CENTRE = int(np.flatnonzero(~_STENCIL.any(axis=1))[0])
+_RING = np.flatnonzero(_STENCIL.any(axis=1))
 
 
 @dataclass(frozen=True)
@@ -112,11 +114,18 @@ def refine_poses(tables: SensorTables, measurement: Measurement, poses: FloatArr
     best = (explanation(tables, measurement, cur).log_likelihood
             if cur.shape[0] and rounds <= 0 else np.zeros(0))
     h = np.asarray(step, dtype=np.float64)
-    for _ in range(rounds):
+    for r in range(rounds):
         if cur.shape[0] == 0:
             break
         cand = (cur[:, None, :] + _STENCIL[None] * h).reshape(-1, 3)
-        ll = explanation(tables, measurement, cand).log_likelihood.reshape(cur.shape[0], -1)
+        if r == 0:
+            ll = explanation(tables, measurement, cand).log_likelihood.reshape(cur.shape[0], -1)
+        else:   # the centre is the last round's pick (cur + 0 == cur): its score is best
+            ring = cand.reshape(cur.shape[0], -1, 3)[:, _RING].reshape(-1, 3)
+            ll = np.empty((cur.shape[0], _STENCIL.shape[0]))
+            ll[:, _RING] = explanation(tables, measurement, ring).log_likelihood.reshape(
+                cur.shape[0], -1)
+            ll[:, _CENTRE] = best
         pick = ll.argmax(axis=1)
         cur = cand.reshape(cur.shape[0], -1, 3)[np.arange(cur.shape[0]), pick]
         best = ll[np.arange(cur.shape[0]), pick]

@@ -343,7 +343,7 @@ def _pose_echoes(walls: _Walls, lim: _Limits, corners: _Corners, pose: np.ndarra
             gain = 1.0
             for m in range(order):
                 gain *= walls.strength[seq[m]]
-            amp = gain / length**lim.spreading_power
+            amp = gain / _spread(length, lim.spreading_power)
             if abs(amp) < lim.min_amplitude:
                 continue
             cos_dep = ux * (mA[order, 0, 0] * tx + mA[order, 0, 1] * ty) + uy * (
@@ -409,7 +409,7 @@ def _vertex_echo(walls: _Walls, lim: _Limits, corners: _Corners, m: int, sx: flo
     length = (da + math.sqrt(da * da + (1.0 - aa) * length0 * length0)) / (1.0 - aa)
     if length > lim.max_path_m:
         return False
-    amp = walls.strength[wi] * walls.strength[wj] / length**lim.spreading_power
+    amp = walls.strength[wi] * walls.strength[wj] / _spread(length, lim.spreading_power)
     if abs(amp) < lim.min_amplitude:
         return False
     if slot < out.path_m.shape[1]:
@@ -423,6 +423,13 @@ def _vertex_echo(walls: _Walls, lim: _Limits, corners: _Corners, m: int, sx: flo
             out.points[i, slot, r, 1] = cy if r < 2 else np.nan
         out.bearing[i, slot] = math.atan2(-qy, -qx)
     return True
+
+
+@numba.njit(inline="always", **NUMBA_FLAGS)
+def _spread(length: float, power: float) -> float:
+    """``length**power``, the spreading loss; the 3-D power 1 without ``pow`` (the same
+    number: ``pow(x, 1) == x``; ``pow`` cost about 3 % of the kernel)."""
+    return length if power == 1.0 else length**power
 
 
 @numba.njit(inline="always", **NUMBA_FLAGS)
