@@ -223,6 +223,7 @@ def _fit_summary(fitted: FittedWalls) -> dict[str, Any]:
             "ambiguous": int(fitted.ambiguous.sum()),
             "explained_share": round(fitted.explained_share, 4),
             "peaks_per_wall": fitted.n_peaks.tolist(), "warning": fitted.warning,
+            "heard_side": fitted.side.tolist(),
             "end_sigma_m": np.round(fitted.end_sigma, 4).tolist()}
 
 

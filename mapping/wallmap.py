@@ -171,6 +171,24 @@ class WallMap:
         return out
 
     @property
+    def wall_side(self) -> NDArray[np.int64]:
+        """The side each wall was heard from, shape (n,): +1 left of its direction
+        ``a = walls_m[:, :2] -> b = walls_m[:, 2:]``, -1 right, 0 both or not said. A
+        specular sonar hears a wall's face towards it; a wall heard from one side only is a
+        face whose back (the far side of a shelf stack, a column, the outside of a room) was
+        never heard, so the echo model predicts no echo from it there. The wall fit records
+        it in ``provenance["fit"]["heard_side"]`` (:func:`mapping.walls.fit_walls`); 0 where
+        the map does not say (older maps, maps made from geometry: every wall two-sided)."""
+        fit = self.provenance.get("fit")
+        hs = fit.get("heard_side") if isinstance(fit, dict) else None
+        out = np.zeros(self.n_walls, dtype=np.int64)
+        if hs is not None:
+            a = np.asarray(hs)
+            if a.shape == out.shape and a.size and np.all(np.isin(a, (-1, 0, 1))):
+                out = a.astype(np.int64)
+        return out
+
+    @property
     def shape(self) -> tuple[int, int]:
         """(ny, nx)."""
         return (int(self.G.shape[0]), int(self.G.shape[1]))

@@ -34,8 +34,10 @@ pose (:mod:`localization.estimate`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -137,7 +139,48 @@ def predicted_echoes(tables: SensorTables, speed_m_s: float, poses: FloatArray,
         parallel = np.shape(poses)[0] >= SERIAL_BELOW
     b = echoes_batch(tables.soft_ends[0], poses, speed_m_s, tables.sonar, params,
                      parallel=parallel)
+    if tables.wall_side is not None:
+        b = faces_only(tables, b, poses, parallel)
     return b, map_range_sigma(tables, b, parallel)
+
+
+#: How far behind a wall's line (m) a bounce may start and still count as from the heard
+#: side: a corner's second bounce starts on the first wall's end, on the second wall's line.
+FACE_TOL_M = 0.02
+
+
+def faces_only(tables: SensorTables, batch: EchoBatch, poses: FloatArray,
+               parallel: bool = False) -> EchoBatch:
+    """``batch`` without the echoes that reach a wall from a side it was never heard from
+    (``SensorTables.wall_side``): a fitted wall is the face the mapping runs heard, and what
+    is behind it (the other face of a shelf stack, of a column) is unknown, so a pose there
+    neither expects its echo nor may explain a peak with it. numba kernel
+    (``_kernels._faces_kernel``; its numpy twin is in ``tests/localization/sensor/naive.py``);
+    the kept echoes stay in range order, the rest of each row is padding."""
+    side = tables.wall_side
+    if side is None or batch.range_m.shape[1] == 0:
+        return batch
+    seg = np.asarray(tables.soft_ends[0].segments_m, dtype=np.float64).reshape(-1, 2, 2)
+    keep = _k.face_rows(seg, side, np.asarray(poses, dtype=np.float64), batch.count,
+                        batch.walls, batch.points_m, FACE_TOL_M, parallel)
+    count = keep.sum(axis=1).astype(np.int64)
+    if np.array_equal(count, batch.count):
+        return batch
+    order = np.argsort(~keep, axis=1, kind="stable")
+    pad = np.arange(keep.shape[1])[None, :] >= count[:, None]
+
+    def take(a: NDArray[Any], fill: Any) -> NDArray[Any]:
+        idx = order.reshape(order.shape + (1,) * (a.ndim - 2))
+        out = np.take_along_axis(a, idx, axis=1)
+        out[pad] = fill
+        return out
+
+    return dataclasses.replace(
+        batch, count=count, range_m=take(batch.range_m, np.nan),
+        cos_doppler=take(batch.cos_doppler, np.nan), amplitude=take(batch.amplitude, np.nan),
+        order=take(batch.order, 0), walls=take(batch.walls, -1),
+        points_m=take(batch.points_m, np.nan),
+        arrival_bearing_rad=take(batch.arrival_bearing_rad, np.nan))
 
 
 def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArray

@@ -517,3 +517,67 @@ def map_sigma_rows(seg: NDArray[np.float64], wall_sigma: NDArray[np.float64],
            np.asarray(wall_idx, dtype=np.int64),      # an echo batch's slice: read in place
            np.asarray(points, dtype=np.float64), out)
     return out
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _faces_row(seg: NDArray[np.float64], side: NDArray[np.int64], poses: NDArray[np.float64],
+               count: NDArray[np.int64], wall_idx: NDArray[np.int64],
+               points: NDArray[np.float64], tol_m: float, out: NDArray[np.bool_],
+               i: int) -> None:
+    """Row i of :func:`_faces_kernel`."""
+    for j in range(wall_idx.shape[1]):
+        ok = j < count[i]
+        qx, qy = poses[i, 0], poses[i, 1]
+        for r in range(wall_idx.shape[2]):
+            if not ok:
+                break
+            wi = wall_idx[i, j, r]
+            if wi < 0:
+                break
+            if side[wi] != 0:
+                ax, ay = seg[wi, 0, 0], seg[wi, 0, 1]
+                dx, dy = seg[wi, 1, 0] - ax, seg[wi, 1, 1] - ay
+                length = max(math.hypot(dx, dy), 1e-12)
+                off = (dx * (qy - ay) - dy * (qx - ax)) / length
+                if off * side[wi] < -tol_m:
+                    ok = False
+            qx, qy = _bounce_point(points, i, j, r)
+        out[i, j] = ok
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _faces_kernel(seg: NDArray[np.float64], side: NDArray[np.int64], poses: NDArray[np.float64],
+                  count: NDArray[np.int64], wall_idx: NDArray[np.int64],
+                  points: NDArray[np.float64], tol_m: float, out: NDArray[np.bool_]) -> None:
+    """``out[i, j]``: echo j of pose i meets every wall it bounces on from a side the wall was
+    heard from (``side`` +1 left of a -> b, -1 right, 0 both): the sound arrives at bounce r
+    from bounce r - 1 (the pose for the first), at most ``tol_m`` behind the wall's line.
+    False for padding (``j >= count[i]``)."""
+    for i in range(wall_idx.shape[0]):
+        _faces_row(seg, side, poses, count, wall_idx, points, tol_m, out, i)
+
+
+@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _faces_kernel_parallel(seg: NDArray[np.float64], side: NDArray[np.int64],
+                           poses: NDArray[np.float64], count: NDArray[np.int64],
+                           wall_idx: NDArray[np.int64], points: NDArray[np.float64],
+                           tol_m: float, out: NDArray[np.bool_]) -> None:
+    """:func:`_faces_kernel` over numba's threads (the same numbers)."""
+    for i in numba.prange(wall_idx.shape[0]):
+        _faces_row(seg, side, poses, count, wall_idx, points, tol_m, out, i)
+
+
+def face_rows(seg: NDArray[np.float64], side: NDArray[np.int64], poses: NDArray[np.float64],
+              count: NDArray[np.int64], wall_idx: NDArray[np.int64],
+              points: NDArray[np.float64], tol_m: float, parallel: bool = False
+              ) -> NDArray[np.bool_]:
+    """:func:`_faces_kernel` over an echo batch (n, k, K) (``parallel``: over numba's
+    threads, the same numbers)."""
+    out = np.empty(wall_idx.shape[:2], dtype=np.bool_)
+    kernel = _faces_kernel_parallel if parallel else _faces_kernel
+    kernel(np.ascontiguousarray(seg, dtype=np.float64),
+           np.ascontiguousarray(side, dtype=np.int64),
+           np.ascontiguousarray(poses, dtype=np.float64), np.asarray(count, dtype=np.int64),
+           np.asarray(wall_idx, dtype=np.int64), np.asarray(points, dtype=np.float64),
+           float(tol_m), out)
+    return out

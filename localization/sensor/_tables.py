@@ -67,6 +67,10 @@ class SensorTables:
         never looked past an end it is large, and the echo model runs the wall on
         (:func:`soft_end_walls`); None where the map does not say (``wall_sigma``'s endpoint
         sigma then applies to both ends).
+    wall_side : ndarray int64, shape (n_walls,), or None
+        The side each wall was heard from (``WallMap.wall_side``: +1 left of its direction,
+        -1 right, 0 both); None where every wall is two-sided (an ideal map, an older map).
+        The echo model predicts no echo that reaches a wall from a side never heard.
     complete : bool
         Whether the map claims every wall: a map made from geometry (a floor plan, a scene)
         rather than built from runs, which holds only the walls they heard (``WallMap``
@@ -94,6 +98,7 @@ class SensorTables:
     wall_sigma: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     complete: bool = False
     end_sigma: FloatArray | None = None
+    wall_side: NDArray[np.int64] | None = None
 
     @cached_property
     def soft_ends(self) -> tuple[WallSet, FloatArray]:
@@ -240,7 +245,14 @@ def build_tables(
         wall_sigma=np.nan_to_num(np.asarray(wall_map.wall_sigma, dtype=np.float64).reshape(-1, 3)),
         complete=not wall_map.provenance.get("runs"),
         end_sigma=_end_sigma_of(wall_map),
+        wall_side=_side_of(wall_map),
     )
+
+
+def _side_of(wall_map: WallMap) -> NDArray[np.int64] | None:
+    """``WallMap.wall_side``, None where every wall is two-sided."""
+    side = wall_map.wall_side
+    return side if np.any(side != 0) else None
 
 
 def _end_sigma_of(wall_map: WallMap) -> FloatArray | None:

@@ -15,6 +15,8 @@ echo peaks (`run_peaks`, `heatmap_peaks`), and walls are chosen so that the forw
   explained by multi-bounce paths of the walls kept, and are not walls;
 - a wall heard only from a straight path cannot be told from its mirror about the path: both
   are kept, flagged ambiguous and paired, never resolved by guess.
+- each wall records the side it was heard from: a wall heard from one side is a face, and
+  what is behind it (the far side of a shelf stack or a column) was never heard.
 
 Entry points: `run_peaks` (a run -> `PeakObservations`), `fit_walls` (peaks -> `FittedWalls`);
 :func:`mapping.build.build_map` with ``method="walls"`` does both over many runs and stores

@@ -129,3 +129,44 @@ def heard_blocks(obs: PeakObservations, walls: WallSet, index: int, config: Sona
         dc = np.abs(np.cos(obs.angle_rad[m])[:, None] - pc[None, :])
         heard += int(np.any((dr <= range_tol_m) & (dc <= cos_tol)))
     return int(rows.size), heard
+
+
+def heard_sides(obs: PeakObservations, walls: WallSet, config: SonarConfig, range_tol_m: float,
+                cos_tol: float, max_range_m: float) -> IntArray:
+    """Blocks in which each wall's first-order echo was heard, per side of the wall the robot
+    stood on: (n, 2), column 0 left of the wall's direction ``a -> b``, column 1 right.
+
+    A specular echo shows a wall's face towards the sonar; a wall heard from one side only
+    is one face of something whose other side was never heard (a shelf stack heard from one
+    aisle, a room's wall heard from inside). The forward model (occlusion by the other walls
+    included) gives each pose's first-order echo of each wall; it was heard when a peak of
+    that block lies within ``range_tol_m`` and ``cos_tol`` of it.
+    """
+    out = np.zeros((walls.n, 2), dtype=np.int64)
+    if obs.size == 0 or walls.n == 0:
+        return out
+    key = obs.run * 1_000_000 + obs.block
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(obs.size)[::-1]
+    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    batch = echoes_batch(walls, poses, 0.0, config,
+                         ForwardParams(max_order=1, max_range_m=max_range_m))
+    valid = np.arange(batch.range_m.shape[1])[None, :] < batch.count[:, None]
+    seg = walls.segments_m
+    cos_peak = np.cos(obs.angle_rad)
+    for w in range(walls.n):
+        own = valid & (batch.walls[..., 0] == w) & (batch.order == 1)
+        rows = np.flatnonzero(own.any(axis=1))
+        if rows.size == 0:
+            continue
+        r = np.where(own, batch.range_m, np.nan)[rows]
+        c = np.where(own, batch.cos_doppler, np.nan)[rows]
+        side = _cross(seg[w, 1] - seg[w, 0], poses[rows, :2] - seg[w, 0])
+        for row, pr, pc, s in zip(rows, r, c, side, strict=True):
+            m = inv == row
+            dr = np.abs(obs.range_m[m][:, None] - pr[None, :])
+            dc = np.abs(cos_peak[m][:, None] - pc[None, :])
+            if np.any((dr <= range_tol_m) & (dc <= cos_tol)):
+                out[w, 0 if s > 0 else 1] += 1
+    return out

@@ -15,6 +15,9 @@ Greedy, one line at a time (see :func:`fit_walls`):
 4. After the greedy pass every wall is checked again against all the others (leave one out),
    ends are joined at inside corners, and a straight path's left/right mirror is kept as a
    flagged pair, never resolved by guess.
+5. Each wall records the side it was heard from (``FittedWalls.side``): a face heard from one
+   side is one face of something whose far side was never heard (a shelf stack seen from
+   one aisle), and the echo model predicts nothing from its back.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from numpy.typing import NDArray
 
 from mapping.forward import SPREADING_POWER, WallSet
 from mapping.signal import SonarConfig
-from mapping.walls._explain import explained, heard_blocks, occluded
+from mapping.walls._explain import explained, heard_blocks, heard_sides, occluded
 from mapping.walls._lines import (
     LineFit,
     fit_line,
@@ -275,6 +278,7 @@ class FittedWalls:
     explained_share: float
     n_candidates: int
     end_sigma: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    side: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n(self) -> int:
@@ -857,10 +861,24 @@ def _finish(kept: list[_Wall], obs: PeakObservations,
     return FittedWalls(
         walls_m=walls, strength=np.array([w.strength for w in kept]), sigma=sigma,
         end_sigma=_end_sigmas(kept, sigma[:, 2], obs, config, params),
-        ambiguous=pair >= 0, pair=pair,
+        ambiguous=pair >= 0, pair=pair, side=_heard_side(final, obs, config, params),
         n_peaks=np.array([w.cand.members.size for w in kept], dtype=np.int64),
         gain=np.array([w.cand.gain for w in kept]), explained_share=_share(obs, ex),
         n_candidates=n_candidates)
+
+
+def _heard_side(walls: WallSet, obs: PeakObservations, config: SonarConfig,
+                params: WallFitParams) -> NDArray[np.int64]:
+    """The side each wall was heard from (n,): +1 left of ``a -> b``, -1 right, 0 both or
+    unknown (:func:`heard_sides`). A side counts as heard with its first-order echo in
+    ``min_blocks`` blocks, or in any block when the other side has none; a wall heard from
+    one side is a face (the other side of a shelf stack or a column was never heard, and a
+    robot there must not explain its echoes with it)."""
+    n = heard_sides(obs, walls, config, params.range_tol_m, params.cos_tol,
+                    params.peaks.max_range_m)
+    left = (n[:, 0] >= params.min_blocks) | ((n[:, 0] > 0) & (n[:, 1] == 0))
+    right = (n[:, 1] >= params.min_blocks) | ((n[:, 1] > 0) & (n[:, 0] == 0))
+    return np.where(left & ~right, 1, np.where(right & ~left, -1, 0)).astype(np.int64)
 
 
 def _end_sigmas(kept: list[_Wall], observed_sigma: FloatArray, obs: PeakObservations,
