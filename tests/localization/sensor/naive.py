@@ -183,3 +183,31 @@ def map_sigma_numpy(seg: FloatArray, wall_sigma: FloatArray, wall_idx: NDArray[n
     var = np.where(valid, wall_sigma[wi, 0] ** 2 + (along * wall_sigma[wi, 1]) ** 2,
                    0.0).sum(axis=2)
     return np.asarray(np.sqrt(var))
+
+
+def faces_numpy(seg: FloatArray, side: NDArray[np.int64], poses: FloatArray,
+                count: NDArray[np.int64], wall_idx: NDArray[np.int64], points_m: FloatArray,
+                tol_m: float) -> NDArray[np.bool_]:
+    """Twin of ``_kernels._faces_kernel``, echo by echo in plain Python: every bounce of
+    the echo starts (at the pose, then at the previous bounce point) no more than ``tol_m``
+    behind the line of a one-sided wall; padding is False."""
+    n, k, order = wall_idx.shape
+    out = np.zeros((n, k), dtype=bool)
+    for i in range(n):
+        for j in range(min(int(count[i]), k)):
+            start = np.asarray(poses[i, :2], dtype=np.float64)
+            ok = True
+            for r in range(order):
+                w = int(wall_idx[i, j, r])
+                if w < 0:
+                    break
+                a, b = seg[w, 0], seg[w, 1]
+                d = b - a
+                off = (d[0] * (start[1] - a[1]) - d[1] * (start[0] - a[0])) / max(
+                    float(np.hypot(*d)), 1e-12)
+                if side[w] != 0 and off * side[w] < -tol_m:
+                    ok = False
+                    break
+                start = np.nan_to_num(points_m[i, j, r])
+            out[i, j] = ok
+    return out

@@ -316,3 +316,58 @@ def test_a_corner_taken_back_leaves_no_lone_joined_end() -> None:
     assert _end_sigma_at(wm, (min(east_piece[0], east_piece[2]), 4.8)) == open_m
     assert _end_sigma_at(wm, (max(west_piece[0], west_piece[2]), 4.8)) == open_m
     assert _end_sigma_at(wm, (0.0, 4.8)) == 0.0          # the north-west corner
+
+
+def test_heard_sides_counts_the_blocks_on_each_side_of_a_wall() -> None:
+    """Analytic: a wall on y = 0 (x 0-4, a -> b east, so y > 0 is its left); a robot driving
+    east at y = 1 hears it at 1 m abeam (Doppler cosine 0) in 5 blocks, at y = -1.5 at
+    1.5 m in 3 blocks, plus 2 blocks at y = 1 whose only peak is at the wrong range."""
+    from mapping.forward import WallSet
+    from mapping.walls import PeakObservations
+    from mapping.walls._explain import heard_sides
+
+    xs = np.array([0.5, 1.2, 1.9, 2.6, 3.3, 0.8, 1.6, 2.4, 1.0, 3.0])
+    ys = np.array([1.0] * 5 + [-1.5] * 3 + [1.0] * 2)
+    rng_m = np.array([1.0] * 5 + [1.5] * 3 + [0.6] * 2)
+    n = xs.size
+    obs = PeakObservations(run=np.zeros(n, dtype=np.int64), block=np.arange(n), x_m=xs,
+                           y_m=ys, travel_rad=np.zeros(n), range_m=rng_m,
+                           angle_rad=np.full(n, math.pi / 2), value=np.ones(n),
+                           noise=np.full(n, 0.01))
+    walls = WallSet.from_array(np.array([[0.0, 0.0, 4.0, 0.0]]))
+    assert heard_sides(obs, walls, CONFIG, 0.03, 0.15, 6.0).tolist() == [[5, 3]]
+    flipped = WallSet.from_array(np.array([[4.0, 0.0, 0.0, 0.0]]))
+    assert heard_sides(obs, flipped, CONFIG, 0.03, 0.15, 6.0).tolist() == [[3, 5]]
+
+
+def test_every_shoebox_wall_is_heard_from_inside(shoebox_map) -> None:
+    """Ground truth: the curve stays inside the shoebox, so every fitted wall was heard from
+    the room's side (``WallMap.wall_side`` toward the room's centre)."""
+    scene, wm = shoebox_map
+    centre = scene.segments().reshape(-1, 2).mean(axis=0)
+    seg = wm.walls_m.reshape(-1, 2, 2)
+    d = seg[:, 1] - seg[:, 0]
+    towards = np.sign(d[:, 0] * (centre[1] - seg[:, 0, 1]) - d[:, 1] * (centre[0] - seg[:, 0, 0]))
+    assert wm.wall_side.tolist() == towards.astype(int).tolist()
+
+
+def test_a_wall_heard_from_both_sides_is_two_sided() -> None:
+    """The fit's rule on the counts of :func:`heard_sides`: a side counts with
+    ``min_blocks`` (4) blocks, or any when the other side has none."""
+    from mapping.forward import WallSet
+    from mapping.walls import PeakObservations
+    from mapping.walls._fit import _heard_side
+
+    def side(n_left: int, n_right: int) -> int:
+        ys = np.array([1.0] * n_left + [-1.0] * n_right)
+        n = ys.size
+        obs = PeakObservations(run=np.zeros(n, dtype=np.int64), block=np.arange(n),
+                               x_m=np.linspace(0.5, 3.5, n), y_m=ys, travel_rad=np.zeros(n),
+                               range_m=np.ones(n), angle_rad=np.full(n, math.pi / 2),
+                               value=np.ones(n), noise=np.full(n, 0.01))
+        walls = WallSet.from_array(np.array([[0.0, 0.0, 4.0, 0.0]]))
+        return int(_heard_side(walls, obs, CONFIG, WallFitParams())[0])
+
+    assert side(5, 0) == 1 and side(0, 2) == -1
+    assert side(5, 3) == 1              # three blocks from behind: not enough to count
+    assert side(5, 4) == 0 and side(2, 1) == 0
