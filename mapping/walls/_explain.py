@@ -13,6 +13,16 @@ BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
 
+def _block_poses(obs: PeakObservations) -> tuple[IntArray, IntArray, NDArray[np.float64]]:
+    """Each peak's block (index into the poses), each block's first peak and the pose of
+    every block (n_blocks, 3)."""
+    key = obs.run * 1_000_000 + obs.block
+    uniq, inv = np.unique(key, return_inverse=True)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(obs.size)[::-1]
+    return inv, first, np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+
+
 def explained(obs: PeakObservations, walls: WallSet, config: SonarConfig, max_order: int,
               range_tol_m: float, cos_tol: float, min_order: int = 1,
               must_use: int = -1) -> BoolArray:
@@ -24,11 +34,7 @@ def explained(obs: PeakObservations, walls: WallSet, config: SonarConfig, max_or
     out = np.zeros(obs.size, dtype=bool)
     if obs.size == 0 or walls.n == 0:
         return out
-    key = obs.run * 1_000_000 + obs.block
-    uniq, inv = np.unique(key, return_inverse=True)
-    first = np.zeros(uniq.size, dtype=np.int64)
-    first[inv[::-1]] = np.arange(obs.size)[::-1]
-    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    inv, _, poses = _block_poses(obs)
     batch = echoes_batch(walls, poses, 0.0, config, ForwardParams(max_order=max_order))
     ok = (batch.order >= min_order)
     if must_use >= 0:
@@ -104,15 +110,11 @@ def heard_blocks(obs: PeakObservations, walls: WallSet, index: int, config: Sona
     """
     if obs.size == 0:
         return 0, 0
-    key = obs.run * 1_000_000 + obs.block
-    uniq, inv = np.unique(key, return_inverse=True)
-    first = np.zeros(uniq.size, dtype=np.int64)
-    first[inv[::-1]] = np.arange(obs.size)[::-1]
-    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    inv, first, poses = _block_poses(obs)
     batch = echoes_batch(walls, poses, 0.0, config,
                          ForwardParams(max_order=1, max_range_m=max_range_m))
     own = (batch.walls[..., 0] == index) & (batch.order == 1)
-    top = np.zeros(uniq.size)
+    top = np.zeros(poses.shape[0])
     np.maximum.at(top, inv, obs.value)
     level = np.maximum(snr * obs.noise[first], min_relative * top)
     loud = np.abs(batch.amplitude) >= 1.5 * level[:, None]
@@ -145,11 +147,7 @@ def heard_sides(obs: PeakObservations, walls: WallSet, config: SonarConfig, rang
     out = np.zeros((walls.n, 2), dtype=np.int64)
     if obs.size == 0 or walls.n == 0:
         return out
-    key = obs.run * 1_000_000 + obs.block
-    uniq, inv = np.unique(key, return_inverse=True)
-    first = np.zeros(uniq.size, dtype=np.int64)
-    first[inv[::-1]] = np.arange(obs.size)[::-1]
-    poses = np.stack([obs.x_m[first], obs.y_m[first], obs.travel_rad[first]], axis=1)
+    inv, _, poses = _block_poses(obs)
     batch = echoes_batch(walls, poses, 0.0, config,
                          ForwardParams(max_order=1, max_range_m=max_range_m))
     valid = np.arange(batch.range_m.shape[1])[None, :] < batch.count[:, None]
