@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -163,24 +162,17 @@ def faces_only(tables: SensorTables, batch: EchoBatch, poses: FloatArray,
     seg = np.asarray(tables.soft_ends[0].segments_m, dtype=np.float64).reshape(-1, 2, 2)
     keep = _k.face_rows(seg, side, np.asarray(poses, dtype=np.float64), batch.count,
                         batch.walls, batch.points_m, FACE_TOL_M, parallel)
-    count = keep.sum(axis=1).astype(np.int64)
-    if np.array_equal(count, batch.count):
+    if np.array_equal(keep.sum(axis=1), batch.count):
         return batch
-    order = np.argsort(~keep, axis=1, kind="stable")
-    pad = np.arange(keep.shape[1])[None, :] >= count[:, None]
-
-    def take(a: NDArray[Any], fill: Any) -> NDArray[Any]:
-        idx = order.reshape(order.shape + (1,) * (a.ndim - 2))
-        out = np.take_along_axis(a, idx, axis=1)
-        out[pad] = fill
-        return out
-
+    # the four float fields compacted as one (4, n, k) stack (numba ``_compact_kernel``;
+    # numpy's argsort and take_along_axis cost 6-7 ms for 2000 poses, the kernel 0.3 ms)
+    f = np.stack([batch.range_m, batch.cos_doppler, batch.amplitude,
+                  batch.arrival_bearing_rad])
+    count, f, order, walls, points = _k.compact_rows(keep, f, batch.order, batch.walls,
+                                                     batch.points_m, parallel)
     return dataclasses.replace(
-        batch, count=count, range_m=take(batch.range_m, np.nan),
-        cos_doppler=take(batch.cos_doppler, np.nan), amplitude=take(batch.amplitude, np.nan),
-        order=take(batch.order, 0), walls=take(batch.walls, -1),
-        points_m=take(batch.points_m, np.nan),
-        arrival_bearing_rad=take(batch.arrival_bearing_rad, np.nan))
+        batch, count=count, range_m=f[0], cos_doppler=f[1], amplitude=f[2],
+        order=order, walls=walls, points_m=points, arrival_bearing_rad=f[3])
 
 
 def explanation(tables: SensorTables, measurement: Measurement, poses: FloatArray

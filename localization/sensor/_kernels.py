@@ -581,3 +581,83 @@ def face_rows(seg: NDArray[np.float64], side: NDArray[np.int64], poses: NDArray[
            np.asarray(wall_idx, dtype=np.int64), np.asarray(points, dtype=np.float64),
            float(tol_m), out)
     return out
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _compact_row(keep: NDArray[np.bool_], f: NDArray[np.float64], order: NDArray[np.int64],
+                 walls: NDArray[np.int64], points: NDArray[np.float64],
+                 f_out: NDArray[np.float64], order_out: NDArray[np.int64],
+                 walls_out: NDArray[np.int64], points_out: NDArray[np.float64],
+                 count_out: NDArray[np.int64], i: int) -> None:
+    """Row i of :func:`_compact_kernel`."""
+    k = keep.shape[1]
+    w = 0
+    for j in range(k):
+        if not keep[i, j]:
+            continue
+        for q in range(f.shape[0]):
+            f_out[q, i, w] = f[q, i, j]
+        order_out[i, w] = order[i, j]
+        for r in range(walls.shape[2]):
+            walls_out[i, w, r] = walls[i, j, r]
+            points_out[i, w, r, 0] = points[i, j, r, 0]
+            points_out[i, w, r, 1] = points[i, j, r, 1]
+        w += 1
+    count_out[i] = w
+    for j in range(w, k):
+        for q in range(f.shape[0]):
+            f_out[q, i, j] = np.nan
+        order_out[i, j] = 0
+        for r in range(walls.shape[2]):
+            walls_out[i, j, r] = -1
+            points_out[i, j, r, 0] = np.nan
+            points_out[i, j, r, 1] = np.nan
+
+
+@numba.njit(**NUMBA_FLAGS)
+def _compact_kernel(keep: NDArray[np.bool_], f: NDArray[np.float64], order: NDArray[np.int64],
+                    walls: NDArray[np.int64], points: NDArray[np.float64],
+                    f_out: NDArray[np.float64], order_out: NDArray[np.int64],
+                    walls_out: NDArray[np.int64], points_out: NDArray[np.float64],
+                    count_out: NDArray[np.int64]) -> None:
+    """Each row's kept echoes (``keep`` (n, k)) moved to its front in their order, the rest
+    padding (NaN floats, ``order`` 0, ``walls`` -1, NaN points): ``f`` (m, n, k) stacks the
+    batch's float fields, ``walls`` / ``points`` are (n, k, K) / (n, k, K, 2)."""
+    for i in range(keep.shape[0]):
+        _compact_row(keep, f, order, walls, points, f_out, order_out, walls_out, points_out,
+                     count_out, i)
+
+
+@numba.njit(parallel=PARALLEL, **NUMBA_FLAGS)
+def _compact_kernel_parallel(keep: NDArray[np.bool_], f: NDArray[np.float64],
+                             order: NDArray[np.int64], walls: NDArray[np.int64],
+                             points: NDArray[np.float64], f_out: NDArray[np.float64],
+                             order_out: NDArray[np.int64], walls_out: NDArray[np.int64],
+                             points_out: NDArray[np.float64],
+                             count_out: NDArray[np.int64]) -> None:
+    """:func:`_compact_kernel` over numba's threads (the same numbers)."""
+    for i in numba.prange(keep.shape[0]):
+        _compact_row(keep, f, order, walls, points, f_out, order_out, walls_out, points_out,
+                     count_out, i)
+
+
+def compact_rows(keep: NDArray[np.bool_], f: NDArray[np.float64], order: NDArray[np.int64],
+                 walls: NDArray[np.int64], points: NDArray[np.float64],
+                 parallel: bool = False) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                                                   NDArray[np.int64], NDArray[np.int64],
+                                                   NDArray[np.float64]]:
+    """:func:`_compact_kernel` on an echo batch's fields; returns the counts and the
+    compacted ``f``, ``order``, ``walls``, ``points`` (``parallel``: over numba's threads,
+    the same numbers)."""
+    f_out = np.empty(f.shape, dtype=np.float64)
+    order_out = np.empty(order.shape, dtype=np.int64)
+    walls_out = np.empty(walls.shape, dtype=np.int64)
+    points_out = np.empty(points.shape, dtype=np.float64)
+    count_out = np.empty(keep.shape[0], dtype=np.int64)
+    kernel = _compact_kernel_parallel if parallel else _compact_kernel
+    kernel(np.ascontiguousarray(keep), np.ascontiguousarray(f, dtype=np.float64),
+           np.ascontiguousarray(order, dtype=np.int64),
+           np.ascontiguousarray(walls, dtype=np.int64),
+           np.ascontiguousarray(points, dtype=np.float64), f_out, order_out, walls_out,
+           points_out, count_out)
+    return count_out, f_out, order_out, walls_out, points_out

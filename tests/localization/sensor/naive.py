@@ -211,3 +211,26 @@ def faces_numpy(seg: FloatArray, side: NDArray[np.int64], poses: FloatArray,
                 start = np.nan_to_num(points_m[i, j, r])
             out[i, j] = ok
     return out
+
+
+def compact_numpy(keep: NDArray[np.bool_], f: FloatArray, order: NDArray[np.int64],
+                  walls: NDArray[np.int64], points: FloatArray
+                  ) -> tuple[NDArray[np.int64], FloatArray, NDArray[np.int64],
+                             NDArray[np.int64], FloatArray]:
+    """Twin of ``_kernels._compact_kernel``, row by row in plain Python: the kept echoes in
+    their order, then padding (NaN, 0, -1, NaN)."""
+    n, k = keep.shape
+    f_out = np.full(f.shape, np.nan)
+    order_out = np.zeros(order.shape, dtype=np.int64)
+    walls_out = np.full(walls.shape, -1, dtype=np.int64)
+    points_out = np.full(points.shape, np.nan)
+    count = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        kept = [j for j in range(k) if keep[i, j]]
+        count[i] = len(kept)
+        for w, j in enumerate(kept):
+            f_out[:, i, w] = f[:, i, j]
+            order_out[i, w] = order[i, j]
+            walls_out[i, w] = walls[i, j]
+            points_out[i, w] = points[i, j]
+    return count, f_out, order_out, walls_out, points_out

@@ -19,11 +19,11 @@ from localization.sensor import (
     prepare_measurement,
 )
 from localization.sensor._echo import FACE_TOL_M, faces_only
-from localization.sensor._kernels import face_rows
+from localization.sensor._kernels import compact_rows, face_rows
 from mapping.forward import WallSet, predicted_heatmap
 from mapping.signal import SonarConfig
 from mapping.wallmap import WallMap, wallmap_from_walls
-from tests.localization.sensor.naive import faces_numpy
+from tests.localization.sensor.naive import compact_numpy, faces_numpy
 
 FloatArray = NDArray[np.float64]
 ECHO = SensorConfig(model="echo")
@@ -140,3 +140,52 @@ def test_face_kernel_matches_its_numpy_twin(n_walls: int, n: int, k: int, order:
     np.testing.assert_array_equal(face_rows(seg, side, poses, count, idx, pts, FACE_TOL_M), want)
     np.testing.assert_array_equal(
         face_rows(seg, side, poses, count, idx, pts, FACE_TOL_M, parallel=True), want)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 7), st.integers(1, 3), st.integers(0, 2**32 - 1))
+def test_compaction_kernel_matches_its_numpy_twin(n: int, k: int, order: int,
+                                                  seed: int) -> None:
+    """Random keep masks over random fields (NaNs included): the numba compaction and its
+    parallel twin against the plain loop, padding and all."""
+    rng = np.random.default_rng(seed)
+    keep = rng.random((n, k)) < 0.6
+    f = rng.normal(size=(4, n, k))
+    f[rng.random(f.shape) < 0.1] = np.nan
+    orders = rng.integers(0, 4, (n, k)).astype(np.int64)
+    walls = rng.integers(-1, 9, (n, k, order)).astype(np.int64)
+    points = rng.normal(size=(n, k, order, 2))
+    want = compact_numpy(keep, f, orders, walls, points)
+    for parallel in (False, True):
+        got = compact_rows(keep, f, orders, walls, points, parallel)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_faces_only_keeps_the_batch_when_nothing_is_dropped_and_compacts_otherwise() -> None:
+    """From the south aisle every echo is from a heard side: the batch comes back as it
+    was; from the middle aisle the kept rows equal the full batch's rows without the
+    dropped echoes (fields checked one by one against the mask)."""
+    walls = np.vstack([FACE, ROOM])
+    tables = build_tables(_sided(walls, [1, 1, 1]), ECHO)
+    south = np.array([[3.0, 1.2, 0.3], [4.5, 1.0, -2.0]])
+    full, _ = predicted_echoes(build_tables(wallmap_from_walls(walls), ECHO), 0.1, south,
+                               parallel=False)
+    assert faces_only(tables, full, south) is full
+    mid = np.array([[3.0, 2.85, 0.3], [4.0, 3.5, 1.0], [1.0, 1.0, 0.0]])
+    full, _ = predicted_echoes(build_tables(wallmap_from_walls(walls), ECHO), 0.1, mid,
+                               parallel=False)
+    seg = np.asarray(tables.soft_ends[0].segments_m, dtype=np.float64).reshape(-1, 2, 2)
+    assert tables.wall_side is not None
+    keep = face_rows(seg, tables.wall_side, mid, full.count, full.walls, full.points_m,
+                     FACE_TOL_M)
+    kept = faces_only(tables, full, mid)
+    assert kept.count.tolist() == keep.sum(axis=1).tolist()
+    assert np.any(kept.count < full.count)
+    for i in range(mid.shape[0]):
+        sel = np.flatnonzero(keep[i])
+        k = sel.size
+        for name in ("range_m", "cos_doppler", "amplitude", "arrival_bearing_rad", "order",
+                     "walls", "points_m"):
+            np.testing.assert_array_equal(getattr(kept, name)[i, :k],
+                                          getattr(full, name)[i, sel], err_msg=name)
