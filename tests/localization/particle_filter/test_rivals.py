@@ -270,6 +270,29 @@ def test_a_rival_better_by_less_than_the_margin_puts_the_status_in_doubt(
     assert np.hypot(*(on.pose[:2] - truth[6, :2])) < 0.05
 
 
+def test_the_default_doubts_a_rival_better_by_the_t_hall_kidnaps_margin(
+        tables: SensorTables) -> None:
+    """The default ``rival_doubt_nats`` (0.3) doubts a rival better by about 0.4 nats, the
+    margin of the first block after a kidnap from the T-hall's stem into its look-alike
+    cross hall on a built map (0.42-0.43 nats; ``converged`` 5 m off at the old 0.5): the
+    rival here is handed -0.45 nats (about -0.4 after one block's forgetting). The control:
+    at 0.5 the same block is ``converged``; the estimate is the same either way."""
+    truth = trajectory(np.array([5.5, 0.9, 0.0]), [(SPEED, 0.0)] * 7, DT)
+    hms = _blocks(truth)
+    pf = ParticleFilter(tables, FilterConfig(), np.random.default_rng(0), pose=truth[0],
+                        cov=TIGHT)
+    _drive(pf, hms[:6])
+    assert pf.anchored and FilterConfig().rival_doubt_nats == 0.3
+    pf.rivals = Rivals(np.array([truth[5] + [2.0, 0.0, 0.0]]), np.array([-0.45]))
+    old = copy.deepcopy(pf)
+    old.config = dataclasses.replace(old.config, rival_doubt_nats=0.5)
+    now, before = pf.step(hms[6], SPEED, 0.0, DT), old.step(hms[6], SPEED, 0.0, DT)
+    assert -0.5 < pf.rivals.gap.min() < -0.3
+    assert now.status == "uncertain" and now.reason == "rival_doubt"
+    assert before.status == "converged"
+    np.testing.assert_allclose(now.pose, before.pose)
+
+
 def test_refine_best_moves_the_best_far_proposals_onto_their_peak(
         tables: SensorTables, kidnap: tuple[FloatArray, list]) -> None:
     """``refine_best``: of proposals scored on a mid-corridor block, the best ``top`` beyond
