@@ -38,6 +38,7 @@ FRESH14L = ("pantry", "arcadia", "scullery")  # written at the start of session 
 FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session 35: "fresh14m"
 FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37: "fresh14n"
 FRESH14O = ("theatre", "stacks", "laundry")  # written in session 39: "fresh14o"
+FRESH14P = ("stables", "ambulatory", "recording")  # written in session 41: "fresh14p"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -115,6 +116,12 @@ INTERIOR = {
                 (8.0, 8.0), (0.0, 6.0)],
     "stacks": [(0.0, 0.0), (9.0, 0.0), (9.0, 6.4), (0.4, 6.4)],
     "laundry": [(0.0, 0.0), (8.0, 0.0), (8.0, 4.2), (5.0, 6.8), (1.2, 6.8), (0.0, 5.6)],
+    "stables": [(0.0, 0.0), (10.0, 0.0), (10.0, 3.0), (8.0, 3.0), (8.0, 6.4), (5.6, 6.4),
+                (5.6, 3.0), (3.6, 3.0), (3.6, 6.4), (1.2, 6.4), (1.2, 3.0), (0.0, 3.0)],
+    "ambulatory": [(14.5505, 1.5809), (12.3346, 4.4172), (9.0996, 5.995), (5.5004, 5.995),
+                   (2.2654, 4.4172), (0.0495, 1.5809), (3.3122, 0.0595), (4.531, 1.6194),
+                   (6.3102, 2.4872), (8.2898, 2.4872), (10.069, 1.6194), (11.2878, 0.0595)],
+    "recording": [(0.0, 0.0), (3.8, 0.0), (9.6, -0.6), (8.8, 5.9), (3.8, 5.6), (0.0, 5.6)],
 }
 
 
@@ -156,6 +163,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
     assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
     assert set(FRESH14N) <= set(SCENES) and set(FRESH14O) <= set(SCENES)
+    assert set(FRESH14P) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -173,7 +181,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14l" if spec.scene in FRESH14L
                     else "fresh14m" if spec.scene in FRESH14M
                     else "fresh14n" if spec.scene in FRESH14N
-                    else "fresh14o" if spec.scene in FRESH14O else "held-out")
+                    else "fresh14o" if spec.scene in FRESH14O
+                    else "fresh14p" if spec.scene in FRESH14P else "held-out")
         assert spec.group == expected
 
 
@@ -587,7 +596,7 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
 @pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
     ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
     ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0),
-    ("fresh14o", FRESH14O, 7.0)])
+    ("fresh14o", FRESH14O, 7.0), ("fresh14p", FRESH14P, 7.0)])
 def test_a_fresh_groups_nine_paths_have_their_length(
         group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
     """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
@@ -1547,6 +1556,184 @@ def test_laundry_is_open_at_a_corner_and_has_a_free_standing_corner_screen() -> 
     _line_in_sight("laundry-line", "laundry-curve", curve, segments)
 
 
+def test_stables_have_two_look_alike_loose_boxes_and_hide_the_back_of_the_east_one() -> None:
+    stables = heldout_scene("stables")
+    walls = {w.name: w for w in stables.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in stables.walls)  # all rigid: no material tells apart
+    outline, interior = _outline("stables", 12)
+    assert np.allclose(interior, [90, 90, 90, 270, 90, 90, 270, 270, 90, 90, 270, 90])
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 46.32)
+    # a hall 10.0 m x 3.0 m and two loose boxes 2.4 m wide and 3.4 m deep off its north side,
+    # open to it over their whole width, 2.0 m apart
+    assert walls["east"].start[0] == 10.0 and np.isclose(walls["east"].length_m, 3.0)
+    for box in "WE":
+        sides = [walls[f"box {box} {side}"] for side in ("east", "back", "west")]
+        assert np.allclose([w.length_m for w in sides], [3.4, 2.4, 3.4])
+        assert sides[0].start[1] == sides[2].end[1] == 3.0  # the mouth, on the hall's north line
+    assert np.isclose(walls["north middle"].length_m, 2.0)
+    # look-alikes: the north side of the hall west of x = 5.6 (box W with the 1.2 m of wall west
+    # of it and the 2.0 m east of it) moved 4.4 m east lies exactly on the north side east of
+    # x = 4.4 (box E), and back; the hall does not repeat (its west wall moved 4.4 m east is
+    # 1.5 m from every wall)
+    segments = stables.segments()
+    on_walls = np.concatenate([np.linspace(a, b, 201) for a, b in segments])
+    north = on_walls[:, 1] > 3.0 - 1e-9
+    west_part = on_walls[north & (on_walls[:, 0] < 5.6 - 1e-9)]
+    east_part = on_walls[north & (on_walls[:, 0] > 4.4 + 1e-9)]
+    assert distance_to_walls(west_part + [4.4, 0.0], segments).max() < 1e-9
+    assert distance_to_walls(east_part - [4.4, 0.0], segments).max() < 1e-9
+    assert np.isclose(distance_to_walls(np.array([[4.4, 1.5]]), segments)[0], 1.5)
+    # mirrored about x = 4.6 the boxes land on each other and only the end walls (with the long
+    # walls' last 0.8 m at the east end) move off, by 0.8 m
+    moved = distance_to_walls(on_walls * [-1.0, 1.0] + [9.2, 0.0], segments)
+    assert np.isclose(moved.max(), 0.8)
+    off = on_walls[moved > 1e-9, 0]
+    assert np.all((off < 1e-9) | (off > 9.2 - 1e-9))
+    # the mapped curve: the hall's west part and box W, never east of the wall between the
+    # boxes; box E's centre line from 1.2 m into it to 0.5 m from its back, x = 6.8,
+    # y 4.3-5.9, is out of its sight (control: without the wall between the boxes and box E's
+    # west wall all in sight)
+    curve = _positions("stables-curve")
+    assert curve[:, 0].max() < 3.55 and curve[:, 1].max() > 5.65
+    strip = np.column_stack([np.full(15, 6.8), np.linspace(4.3, 5.9, 15)])
+    assert not _seen(strip, curve, segments).any()
+    between = np.array([n in ("north middle", "box E west") for n in names])
+    assert _seen(strip, curve, segments[~between]).all()
+    # stables-box: east along the hall and up box E to where the curve ends in box W, moved one
+    # box east (the look-alike pose); more than 1.45 m of it out of the curve's sight
+    box_path = _positions("stables-box")
+    assert np.allclose(box_path[-1], curve[-1] + [4.4, 0.0])
+    _leaves_sight("stables-box", curve, segments, ~between, hidden_m=1.45, far_m=4.5)
+    # stables-line: the length of the hall below both boxes' mouths, all of it in the curve's
+    # sight, at least 60 deg from every heading of the curve
+    line = _positions("stables-line", 300)
+    assert line[:, 0].min() < 1.2 and line[:, 0].max() > 8.0
+    _line_in_sight("stables-line", "stables-curve", curve, segments, apart_deg=60.0)
+
+
+def test_ambulatory_is_a_polygonal_ring_open_at_one_end_with_a_shrine_hiding_its_outer_walk(
+        ) -> None:
+    ambulatory = heldout_scene("ambulatory")
+    walls = {w.name: w for w in ambulatory.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in ambulatory.walls)  # stone: all rigid
+    outline, interior = _outline("ambulatory", 12)  # closed across the open west end
+    assert np.allclose(interior, [77] + [154] * 4 + [77, 103] + [206] * 4 + [103], atol=0.01)
+    assert np.all(np.abs(interior - 90.0) > 12.9)  # no right angle
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 48.92, atol=0.01)
+    # a ring: the outer wall five equal chords of the circle of radius 8.0 m about (7.3, -1.8),
+    # the inner wall five of the circle of radius 4.4 m, every 26 deg from 25 to 155 deg; the
+    # closed east end radial
+    centre = np.array([7.3, -1.8])
+    outer, inner = outline[:6], outline[6:][::-1]
+    for corners, radius, chord in ((outer, 8.0, 3.599), (inner, 4.4, 1.980)):
+        assert np.allclose(np.linalg.norm(corners - centre, axis=1), radius, atol=1e-4)
+        polar = np.degrees(np.arctan2(*(corners - centre).T[::-1]))
+        assert np.allclose(polar, np.arange(25.0, 156.0, 26.0), atol=1e-3)
+        assert np.allclose(np.linalg.norm(np.diff(corners, axis=0), axis=1), chord, atol=1e-3)
+    # mirrored about x = 7.3 the outline is itself: only the open end and the shrine break it
+    mirrored = outline * [-1.0, 1.0] + [14.6, 0.0]
+    assert np.abs(mirrored[:, None] - outline[None]).sum(axis=2).min(axis=1).max() < 1e-9
+    # the west end open over 3.6 m with nothing beyond (every wall on the room's side of it;
+    # its middle 1.75 m from every wall)
+    segments = ambulatory.segments()
+    opening = outline[[5, 6]]
+    assert np.isclose(np.linalg.norm(opening[1] - opening[0]), 3.6, atol=1e-4)
+    normal = np.array([opening[1][1] - opening[0][1], opening[0][0] - opening[1][0]])  # outwards
+    assert np.all((segments.reshape(-1, 2) - opening[0]) @ normal < 1e-3)
+    assert distance_to_walls(opening.mean(axis=0)[None], segments)[0] > 1.75
+    # the shrine: a closed rigid block, a ring sector between the radii 5.9 and 6.5 m and 112
+    # and 130 deg (its corners 81 and 99 deg, no right angle), standing free
+    is_shrine = np.array([n.startswith("shrine") for n in names])
+    shrine = segments[is_shrine]
+    _closed_block(shrine, [1.846, 0.6, 2.034, 0.6])
+    assert np.allclose(np.linalg.norm(shrine[:, 0] - centre, axis=1), [5.9, 5.9, 6.5, 6.5],
+                       atol=1e-4)
+    polar = np.degrees(np.arctan2(*(shrine[:, 0] - centre).T[::-1]))
+    assert np.allclose(polar, [112.0, 130.0, 130.0, 112.0], atol=1e-3)
+    corners = _interior_angles_deg(shrine[:, 0])
+    assert np.allclose(np.sort(np.minimum(corners, 360.0 - corners)), [81, 81, 99, 99], atol=0.01)
+    assert distance_to_walls(shrine[:, 0], segments[~is_shrine]).min() > 1.3
+    # the mapped curve: the east part only (never past 80 deg about the centre, 32 deg short of
+    # the shrine), from the closed east end; the outer walk behind the shrine, 7.1 m from the
+    # centre, 126-138 deg, is out of its sight (control: without the shrine all in sight)
+    curve = _positions("ambulatory-curve")
+    assert np.degrees(np.arctan2(*(curve - centre).T[::-1])).max() < 80.1
+    assert distance_to_walls(curve, segments[[names.index("east end")]]).min() < 0.65
+    ring = np.radians(np.linspace(126.0, 138.0, 13))
+    strip = centre + 7.1 * np.column_stack([np.cos(ring), np.sin(ring)])
+    assert distance_to_walls(strip, segments).min() > 0.55
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_shrine]).all()
+    # ambulatory-west: round below the shrine to within 0.8 m of the open end and back behind
+    # the shrine, more than 1.7 m of it out of the curve's sight
+    west = _positions("ambulatory-west")
+    assert distance_to_walls(west, opening[None]).min() < 0.8
+    assert np.linalg.norm(west[-1] - centre) > 6.5 + 0.5  # ends behind the shrine
+    _leaves_sight("ambulatory-west", curve, segments, ~is_shrine, hidden_m=1.7, far_m=6.8)
+    # ambulatory-line: a chord over the inner wall's bulge, all of it in the curve's sight, at
+    # least 60 deg from every heading of the curve
+    _line_in_sight("ambulatory-line", "ambulatory-curve", curve, segments, apart_deg=60.0)
+
+
+def test_recording_studio_mixes_absorbing_and_glazed_walls_and_hides_the_live_room_behind_glass(
+        ) -> None:
+    recording = heldout_scene("recording")
+    walls = {w.name: w for w in recording.walls}
+    names = list(walls)
+    reflections = {n: w.reflection for n, w in walls.items() if w.reflection is not None}
+    assert reflections == {"live south": 0.85, "window": 0.85,       # glazed
+                           "live east": 0.3, "live north": 0.5, "control west": 0.4}
+    assert all(0.3 <= r <= 0.5 or r == 0.85 for r in reflections.values())
+    outline, interior = _outline("recording", 6)
+    assert np.allclose(interior, [90.0, 185.91, 77.08, 93.58, 183.43, 90.0], atol=0.01)
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 53.89)
+    # the live room's walls splayed: no two of them (with the window) within 7 deg of parallel
+    live = [names.index(n) for n in ("live south", "live east", "live north", "window")]
+    a = _directions_deg("recording")[live]
+    diff = np.abs(a[:, None] - a[None])
+    assert np.minimum(diff, 180.0 - diff)[np.triu_indices(4, 1)].min() > 7.0
+    # the window: a glazed wall 3.6 m up from the south wall between the control room
+    # (3.8 m x 5.6 m) and the live room, its north end free, 2.0 m from the north wall: the
+    # doorway
+    segments = recording.segments()
+    is_window = np.array([n == "window" for n in names])
+    window = walls["window"]
+    assert window.start == (3.8, 0.0) and np.isclose(window.length_m, 3.6)
+    assert np.isclose(distance_to_walls(np.array([window.end]), segments[~is_window])[0], 2.0)
+    # the mapped curve: the control room only (never east of x = 3.05); a line 0.7 m east of
+    # the window, y 0.6-2.8, is out of its sight (control: without the window all in sight)
+    curve = _positions("recording-curve")
+    assert curve[:, 0].max() < 3.05
+    strip = np.column_stack([np.full(15, 4.5), np.linspace(0.6, 2.8, 15)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_window]).all()
+    # recording-live: through the doorway, south down behind the window and east along the
+    # glazed south wall, more than 4.8 m of it out of the curve's sight and at its deepest more
+    # than 1.3 m from every point of the room the curve sees (control: none without the window)
+    driven = _positions("recording-live", 200)
+    door = driven[np.abs(driven[:, 0] - 3.8) < 0.05]
+    assert len(door) and np.all((door[:, 1] > 3.6 + 0.5) & (door[:, 1] < 5.6 - 0.5))
+    _leaves_sight("recording-live", curve, segments, ~is_window, hidden_m=4.8, far_m=5.4)
+    gx, gy = np.arange(-0.2, 9.8, 0.1), np.arange(-0.8, 6.1, 0.1)  # the room on a 10 cm grid
+    cells = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+    in_room = _inside(cells, outline)
+    poses = np.column_stack([curve, np.zeros(len(curve))])
+    deepest = []
+    for kept in (np.ones(len(names), dtype=bool), ~is_window):
+        seen = coverage_mask(poses, gx, gy, 50.0, segments[kept].reshape(-1, 4)).reshape(-1)
+        seen_cells = cells[in_room & seen]
+        deepest.append(np.linalg.norm(driven[:, None] - seen_cells[None], axis=2).min(axis=1).max())
+    assert deepest[0] > 1.3 and deepest[1] < 0.1
+    # recording-line: through the doorway into the live room, all of it in the curve's sight, at
+    # least 60 deg from every heading of the curve
+    _line_in_sight("recording-line", "recording-curve", curve, segments, apart_deg=60.0)
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1574,7 +1761,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14l": FRESH14B_CLEARANCE_M,
                  "fresh14m": FRESH14B_CLEARANCE_M,
                  "fresh14n": FRESH14B_CLEARANCE_M,
-                 "fresh14o": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14o": FRESH14B_CLEARANCE_M,
+                 "fresh14p": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
