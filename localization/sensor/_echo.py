@@ -165,7 +165,8 @@ def faces_only(tables: SensorTables, batch: EchoBatch, poses: FloatArray,
     if np.array_equal(keep.sum(axis=1), batch.count):
         return batch
     # the four float fields compacted as one (4, n, k) stack (numba ``_compact_kernel``;
-    # numpy's argsort and take_along_axis cost 6-7 ms for 2000 poses, the kernel 0.3 ms)
+    # measured alone on 2000 poses of the stack room's built map, 896 rows with echoes
+    # dropped: numpy's argsort and take_along_axis 2.7-2.9 ms, this pass 0.5-0.6 ms)
     f = np.stack([batch.range_m, batch.cos_doppler, batch.amplitude,
                   batch.arrival_bearing_rad])
     count, f, order, walls, points = _k.compact_rows(keep, f, batch.order, batch.walls,
