@@ -3,7 +3,8 @@
 Data: every built-in scene (``paper``, ``shoebox``, ``l-room``, ``corridor``, ``pillar``) and
 every held-out scene of ``scenes/paths.json`` (every group: "held-out", "fresh", "fresh14",
 "fresh14b", "fresh14c", "fresh14d", "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i",
-"fresh14j", "fresh14k", "fresh14l", "fresh14m", "fresh14n", "fresh14o", "fresh14p").
+"fresh14j", "fresh14k", "fresh14l", "fresh14m", "fresh14n", "fresh14o", "fresh14p",
+"fresh14q").
 Per scene the mapping path (``paper-b``, else ``<scene>-curve``) is simulated clean at 0.1 m/s and
 mapped twice: method ``walls`` (fitted walls, for the echo model) and ``paper`` (G, for the
 correlation model); a third, ideal map is the scene's true walls (``wallmap_from_walls``, echo

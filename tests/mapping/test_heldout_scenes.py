@@ -39,6 +39,7 @@ FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session
 FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37: "fresh14n"
 FRESH14O = ("theatre", "stacks", "laundry")  # written in session 39: "fresh14o"
 FRESH14P = ("stables", "ambulatory", "recording")  # written in session 41: "fresh14p"
+FRESH14Q = ("loggia", "gangway", "showroom")  # written later in session 41: "fresh14q"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -122,6 +123,10 @@ INTERIOR = {
                    (2.2654, 4.4172), (0.0495, 1.5809), (3.3122, 0.0595), (4.531, 1.6194),
                    (6.3102, 2.4872), (8.2898, 2.4872), (10.069, 1.6194), (11.2878, 0.0595)],
     "recording": [(0.0, 0.0), (3.8, 0.0), (9.6, -0.6), (8.8, 5.9), (3.8, 5.6), (0.0, 5.6)],
+    "loggia": [(0.0, 0.0), (9.0, 0.0), (9.0, 5.0), (0.0, 5.0)],
+    "gangway": [(0.0, 0.0), (7.0, 0.0), (11.5315, 2.1131), (10.7778, 5.5131), (9.5089, 4.9214),
+                (7.8635, 5.8714), (5.5071, 4.7726), (7.1525, 3.8226), (6.2462, 3.4), (0.6, 3.4)],
+    "showroom": [(0.0, 0.0), (8.8, 0.0), (8.8, 4.6), (7.4, 6.0), (0.0, 6.0)],
 }
 
 
@@ -163,7 +168,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14J) <= set(SCENES) and set(FRESH14K) <= set(SCENES)
     assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
     assert set(FRESH14N) <= set(SCENES) and set(FRESH14O) <= set(SCENES)
-    assert set(FRESH14P) <= set(SCENES)
+    assert set(FRESH14P) <= set(SCENES) and set(FRESH14Q) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -182,7 +187,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14m" if spec.scene in FRESH14M
                     else "fresh14n" if spec.scene in FRESH14N
                     else "fresh14o" if spec.scene in FRESH14O
-                    else "fresh14p" if spec.scene in FRESH14P else "held-out")
+                    else "fresh14p" if spec.scene in FRESH14P
+                    else "fresh14q" if spec.scene in FRESH14Q else "held-out")
         assert spec.group == expected
 
 
@@ -596,7 +602,7 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
 @pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
     ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
     ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0),
-    ("fresh14o", FRESH14O, 7.0), ("fresh14p", FRESH14P, 7.0)])
+    ("fresh14o", FRESH14O, 7.0), ("fresh14p", FRESH14P, 7.0), ("fresh14q", FRESH14Q, 7.0)])
 def test_a_fresh_groups_nine_paths_have_their_length(
         group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
     """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
@@ -1734,6 +1740,175 @@ def test_recording_studio_mixes_absorbing_and_glazed_walls_and_hides_the_live_ro
     _line_in_sight("recording-line", "recording-curve", curve, segments, apart_deg=60.0)
 
 
+def test_loggia_has_colonnades_of_unequal_piers_and_a_cross_wall_hiding_the_east_bay() -> None:
+    loggia = heldout_scene("loggia")
+    walls = {w.name: w for w in loggia.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in loggia.walls)  # stone: all rigid
+    outline, interior = _outline("loggia", 4)  # closed across the colonnades
+    assert np.allclose(interior, 90.0)
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 45.0)
+    # the colonnades: twelve short piers, all of different lengths (0.5-1.5 m), in line along
+    # the south side (eight) and the east end (four), with gaps of 0.15-0.3 m and nothing beyond
+    segments = loggia.segments()
+    for side, count, axis, along, total_m in (("S", 8, 1, 0, 7.45), ("E", 4, 0, 1, 4.25)):
+        piers = np.array([segments[k] for k, n in enumerate(names) if n.startswith(f"pier {side}")])
+        assert len(piers) == count and np.allclose(piers[:, :, axis], 9.0 if side == "E" else 0.0)
+        lengths = np.linalg.norm(piers[:, 1] - piers[:, 0], axis=1)
+        assert np.isclose(lengths.sum(), total_m) and lengths.min() > 0.49 and lengths.max() < 1.51
+        gaps = piers[1:, 0, along] - piers[:-1, 1, along]
+        assert np.all((gaps > 0.149) & (gaps < 0.301))
+        assert np.isclose(lengths.sum() + gaps.sum(), 9.0 if side == "S" else 5.0)
+    pier_m = [w.length_m for w in loggia.walls if w.name.startswith("pier")]
+    assert len(pier_m) == 12 and len({round(p, 6) for p in pier_m}) == 12  # no two alike
+    assert sum(w.length_m < 1.51 for w in loggia.walls) > len(names) / 2  # mostly short
+    beyond = np.array([[4.0, -1.0], [10.0, 2.5], [9.5, -0.5]])  # outside the colonnades
+    assert distance_to_walls(beyond, segments).min() > 0.5
+    # nothing beyond: every wall on the room's side of both colonnades
+    assert np.all(segments[:, :, 1] >= 0.0) and np.all(segments[:, :, 0] <= 9.0)
+    # the cross wall: 2.8 m south from the back wall at x = 5.6 to a free end 2.2 m from the
+    # south colonnade
+    cross = walls["cross wall"]
+    assert cross.start == (5.6, 5.0) and cross.end == (5.6, 2.2) and np.isclose(cross.length_m, 2.8)
+    is_cross = np.array([n == "cross wall" for n in names])
+    assert np.isclose(distance_to_walls(np.array([cross.end]), segments[~is_cross])[0], 2.2)
+    # the mapped curve: the west part only, never east of x = 4.6; a line across the east bay
+    # behind the cross wall, y = 4.0, x 6.2-8.3, is out of its sight (control: without the
+    # cross wall all in sight)
+    curve = _positions("loggia-curve")
+    assert curve[:, 0].max() < 4.6
+    strip = np.column_stack([np.linspace(6.2, 8.3, 15), np.full(15, 4.0)])
+    assert distance_to_walls(strip, segments).min() > 0.55
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_cross]).all()
+    # loggia-bay: below the cross wall's free end into the east bay, more than 2.2 m of it out
+    # of the curve's sight (none without the cross wall)
+    bay = _positions("loggia-bay")
+    assert bay[-1, 0] > 5.6 and bay[-1, 1] > 4.0  # ends in the bay behind the cross wall
+    _leaves_sight("loggia-bay", curve, segments, ~is_cross, hidden_m=2.2, far_m=3.5)
+    # loggia-line: along the south colonnade below the cross wall's free end, all of it in the
+    # curve's sight, at least 60 deg from every heading of the curve
+    line = _positions("loggia-line", 300)
+    assert line[:, 0].min() < 1.2 and line[:, 0].max() > 8.2
+    _line_in_sight("loggia-line", "loggia-curve", curve, segments, apart_deg=60.0)
+
+
+def test_gangway_is_kinked_open_at_one_end_with_a_skewed_recess_hidden_behind_the_kink() -> None:
+    gangway = heldout_scene("gangway")
+    walls = {w.name: w for w in gangway.walls}
+    names = list(walls)
+    assert all(w.reflection is None for w in gangway.walls)  # all rigid
+    outline, interior = _outline("gangway", 10)  # closed across the open end
+    assert np.allclose(interior, [80, 155, 102.5, 77.5, 235, 125, 55, 305, 205, 100], atol=0.02)
+    assert np.all(np.abs(interior - 90.0) > 9.9) and np.all(np.abs(interior - 270.0) > 9.9)
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 42.55, atol=0.01)
+    # two legs 3.4 m wide, the second turned 25 deg north: leg 1's south wall 7.0 m, leg 2's
+    # outer wall 5.0 m
+    a = _directions_deg("gangway")
+    assert np.isclose(a[names.index("south")], 0.0) and np.isclose(a[names.index("north")], 0.0)
+    for name in ("outer", "inner east", "inner west", "recess back"):
+        assert np.isclose(a[names.index(name)], 25.0, atol=1e-3)
+    assert np.isclose(walls["south"].length_m, 7.0) and np.isclose(walls["outer"].length_m, 5.0)
+    segments = gangway.segments()
+    kink_in = np.array(walls["north"].start)
+    assert np.isclose(distance_to_walls(kink_in[None], segments[[names.index("south")]])[0], 3.4)
+    outer = segments[names.index("outer")]
+    u = (outer[1] - outer[0]) / np.linalg.norm(outer[1] - outer[0])
+    for name in ("inner east", "inner west"):
+        p = np.array(walls[name].start)
+        assert np.isclose(abs(u[0] * (p - outer[0])[1] - u[1] * (p - outer[0])[0]), 3.4, atol=1e-3)
+    # the open end: 3.48 m wide, 12.5 deg from square, with nothing beyond (every wall on the
+    # room's side of it; its middle 1.7 m from every wall)
+    opening = outline[[2, 3]]
+    assert np.isclose(np.linalg.norm(opening[1] - opening[0]), 3.4825, atol=1e-3)
+    normal = np.array([opening[1][1] - opening[0][1], opening[0][0] - opening[1][0]])  # outwards
+    assert np.all((segments.reshape(-1, 2) - opening[0]) @ normal < 1e-3)
+    assert distance_to_walls(opening.mean(axis=0)[None], segments)[0] > 1.69
+    # the recess: a 2.6 m mouth in leg 2's inner wall, 1.0 m past the kink's inner corner, its
+    # sides 1.9 m long leaning back at 150 deg, its back wall 2.6 m, parallel to leg 2, reaching
+    # back over leg 1's north wall (west of the kink's inner corner)
+    assert np.isclose(walls["inner west"].length_m, 1.0, atol=1e-3)
+    mouth = np.array([walls["recess east"].start, walls["recess west"].end])
+    assert np.isclose(np.linalg.norm(mouth[1] - mouth[0]), 2.6, atol=1e-3)
+    for name in ("recess east", "recess west"):
+        assert np.isclose(walls[name].length_m, 1.9, atol=1e-3)
+        assert np.isclose(a[names.index(name)], 150.0, atol=1e-2)
+    assert np.isclose(walls["recess back"].length_m, 2.6, atol=1e-3)
+    assert walls["recess west"].start[0] < kink_in[0] - 0.7  # overhangs leg 1
+    # the mapped curve: leg 1's west part only (never east of x = 4.6); a line in the recess's
+    # west part is out of its sight (control: without leg 1's north wall and the recess's west
+    # side, both between the curve and the recess, all in sight)
+    curve = _positions("gangway-curve")
+    assert curve[:, 0].max() < 4.6
+    strip = np.linspace([6.905, 4.59], [7.54, 4.886], 10)  # 0.8 m in, parallel to the mouth
+    assert distance_to_walls(strip, segments).min() > 0.5
+    assert not _seen(strip, curve, segments).any()
+    blocking = np.array([n in ("north", "recess west") for n in names])
+    assert _seen(strip, curve, segments[~blocking]).all()
+    # gangway-recess: along leg 2, round near the open end and back into the recess, ending in
+    # its west part; more than 1.0 m of it out of the curve's sight (none without those walls)
+    recess = _positions("gangway-recess")
+    assert distance_to_walls(recess, opening[None]).min() < 0.5
+    _leaves_sight("gangway-recess", curve, segments, ~blocking, hidden_m=1.0, far_m=6.4)
+    assert not _seen(recess[-1:], curve, segments).any()  # ends out of sight
+    # gangway-line: from leg 2 through the kink down leg 1, all of it in the curve's sight, at
+    # least 60 deg from every heading of the curve
+    line = _positions("gangway-line", 300)
+    assert line[0, 0] > 10.0 and line[-1, 0] < 1.5
+    _line_in_sight("gangway-line", "gangway-curve", curve, segments, apart_deg=60.0)
+
+
+def test_showroom_has_mixed_walls_and_an_l_shaped_display_wall_to_loop_round() -> None:
+    showroom = heldout_scene("showroom")
+    walls = {w.name: w for w in showroom.walls}
+    names = list(walls)
+    reflections = {n: w.reflection for n, w in walls.items() if w.reflection is not None}
+    island = [n for n in names if n.startswith("island")]
+    assert reflections == {"shop front": 0.8, "window": 0.8, "back": 0.4,
+                           **{n: 0.6 for n in island}}
+    assert walls["east"].reflection is None and walls["west"].reflection is None
+    outline, interior = _outline("showroom", 5)
+    assert np.allclose(interior, [90, 90, 135, 135, 90])
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 51.82)
+    assert np.isclose(walls["window"].length_m, 1.4 * np.sqrt(2.0))
+    # the display wall: a closed L-shaped block 0.3 m thick (arms 3.2 m and 2.2 m), standing
+    # free at least 1.4 m from every wall
+    segments = showroom.segments()
+    is_island = np.array([n.startswith("island") for n in names])
+    block = segments[is_island]
+    assert len(block) == 6 and np.allclose(block[:, 1], np.roll(block[:, 0], -1, axis=0))
+    assert np.allclose(np.linalg.norm(block[:, 1] - block[:, 0], axis=1),
+                       [3.2, 0.3, 2.9, 1.9, 0.3, 2.2])
+    corners = _interior_angles_deg(block[:, 0])
+    assert np.allclose(corners, [90, 90, 90, 270, 90, 90])
+    assert distance_to_walls(block.reshape(-1, 2), segments[~is_island]).min() > 1.39
+    # a loop round it: a closed ring of points all 0.6 m or more from every wall
+    ring = np.array([[1.5, 1.5], [7.3, 1.5], [7.3, 4.0], [6.2, 5.2], [1.5, 5.2]])
+    ring_path = np.concatenate([np.linspace(ring[k], ring[(k + 1) % 5], 50) for k in range(5)])
+    assert distance_to_walls(ring_path, segments).min() > 0.59
+    assert _inside(np.array([[4.0, 2.55]]), ring).all()  # the display wall inside the loop
+    # the mapped curve: south and west of the display wall only; the crook of the L, y = 3.4,
+    # x 3.6-5.0, is out of its sight (control: without the display wall all in sight)
+    curve = _positions("showroom-curve")
+    assert curve[:, 1].max() < 3.95 and curve[:, 0].max() < 6.65
+    assert np.all((curve[:, 1] < 2.4 - 0.5) | (curve[:, 0] < 2.6 - 0.5))
+    strip = np.column_stack([np.linspace(3.6, 5.0, 15), np.full(15, 3.4)])
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_island]).all()
+    # showroom-round: round the display wall's east end into the crook, more than 3 m of it out
+    # of the curve's sight (none without the display wall)
+    round_path = _positions("showroom-round")
+    assert round_path[:, 0].max() > 5.8 + 0.5 and _inside(round_path, np.array(
+        [[2.9, 2.7], [5.8, 2.7], [5.8, 4.6], [2.9, 4.6]])).any()
+    _leaves_sight("showroom-round", curve, segments, ~is_island, hidden_m=3.0, far_m=3.0)
+    # showroom-line: along the shop front below the display wall, all of it in the curve's
+    # sight, at least 60 deg from every heading of the curve
+    _line_in_sight("showroom-line", "showroom-curve", curve, segments, apart_deg=60.0)
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1762,7 +1937,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14m": FRESH14B_CLEARANCE_M,
                  "fresh14n": FRESH14B_CLEARANCE_M,
                  "fresh14o": FRESH14B_CLEARANCE_M,
-                 "fresh14p": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14p": FRESH14B_CLEARANCE_M,
+                 "fresh14q": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
