@@ -34,7 +34,7 @@ them, ``"fresh14l"`` at the start of session 34, before any measurement on them,
 ``"fresh14m"`` at the start of session 35, before any measurement on them, ``"fresh14n"`` at
 the start of session 37, before any measurement on them, ``"fresh14o"`` in session 39,
 before any measurement on them, ``"fresh14p"`` in session 41, before any measurement on
-them, and ``"fresh14q"`` later in session 41, before any measurement on them (nothing was
+them, and ``"fresh14q"`` in session 42, before any measurement on them (nothing was
 run on any of these before they were committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """

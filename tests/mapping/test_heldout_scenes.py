@@ -39,7 +39,7 @@ FRESH14M = ("granary", "chancel", "orangery")  # written at the start of session
 FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37: "fresh14n"
 FRESH14O = ("theatre", "stacks", "laundry")  # written in session 39: "fresh14o"
 FRESH14P = ("stables", "ambulatory", "recording")  # written in session 41: "fresh14p"
-FRESH14Q = ("loggia", "gangway", "showroom")  # written later in session 41: "fresh14q"
+FRESH14Q = ("loggia", "gangway", "showroom")  # written in session 42: "fresh14q"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
