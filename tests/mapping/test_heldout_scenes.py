@@ -317,6 +317,12 @@ def _interior_angles_deg(outline: np.ndarray) -> np.ndarray:
     return np.asarray(180.0 - turn)
 
 
+def _signed_area(x: np.ndarray, y: np.ndarray) -> float:
+    """Shoelace area of the polygon with vertices (x, y) in order (positive when
+    counter-clockwise)."""
+    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
 def _outline(name: str, corners: int) -> tuple[np.ndarray, np.ndarray]:
     """The hand-written outline of scene ``name`` (k, 2) and its interior angles (deg),
     checked to have ``corners`` corners and a closed polygon's angle sum."""
@@ -433,7 +439,7 @@ def test_refectory_hides_a_bay_behind_a_counter_and_loft_has_two_look_alike_room
 
     def area(polygon: np.ndarray) -> float:
         x, y = polygon[:, 0], polygon[:, 1]
-        return float(0.5 * abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+        return float(abs(_signed_area(x, y)))
 
     assert np.isclose(area(west), 19.2) and np.isclose(area(east), 17.6)  # similar, not equal
     # mirrored about the dividing wall's middle (x = 4.9) the west room is the east room but for
@@ -1010,7 +1016,7 @@ def test_scullery_has_no_right_angle_and_a_partition_hiding_a_nook() -> None:
     outline, interior = _outline("scullery", 6)
     assert np.all(np.abs(interior - 90.0) > 10.0) and np.all(interior < 180.0)  # convex
     x, y = outline[:, 0], outline[:, 1]
-    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    area = _signed_area(x, y)
     assert 40.0 < area < 60.0 and np.isclose(area, 46.16)
     assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
         "north-east": 0.7, "west": 0.5}
@@ -1153,7 +1159,7 @@ def test_chancel_is_an_l_with_no_right_angle_whose_arm_the_mapped_curve_never_se
     assert np.isclose(interior[~reflex].min(), 76.92, atol=0.01)
     assert np.isclose(interior[~reflex].max(), 101.62, atol=0.01)
     x, y = outline[:, 0], outline[:, 1]
-    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    area = _signed_area(x, y)
     assert np.isclose(area, 46.78)
     lengths = np.array([w.length_m for w in chancel.walls])
     assert np.allclose([lengths.min(), lengths.max()], [2.912, 8.809], atol=1e-3)
@@ -1200,7 +1206,7 @@ def test_orangery_is_open_over_part_of_a_wall_and_has_a_free_standing_planter() 
     lean = np.degrees(np.arctan2(0.8, 6.4))       # the east wall leans in 0.8 m over 6.4 m
     assert np.allclose(interior, [90.0, 90.0 - lean, 90.0 + lean, 90.0])
     x, y = outline[:, 0], outline[:, 1]
-    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    area = _signed_area(x, y)
     assert 40.0 < area < 70.0 and np.isclose(area, 61.44)
     assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
         "east": 0.8}                               # glazed
@@ -1276,7 +1282,7 @@ def test_vault_is_a_triangle_with_a_tomb_along_its_west_wall_hiding_a_strip() ->
     assert np.allclose(interior, [62.30, 49.64, 68.06], atol=0.01)
     assert np.all(np.abs(interior - 90.0) > 20.0)  # every corner acute
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 44.0)
+    assert np.isclose(_signed_area(x, y), 44.0)
     assert np.allclose([walls[n].length_m for n in ("south", "east", "west")],
                        [11.0, 10.50, 9.04], atol=0.005)
     segments = vault.segments()
@@ -1322,7 +1328,7 @@ def test_nursery_is_a_kite_its_own_mirror_but_for_a_doorway_with_a_screen_on_its
     assert np.allclose(interior, [106.99, 64.01, 106.99, 82.02], atol=0.01)
     assert np.all(np.abs(interior - 90.0) > 7.9)   # no right angle
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 44.0)
+    assert np.isclose(_signed_area(x, y), 44.0)
     edges = np.linalg.norm(np.roll(outline, -1, axis=0) - outline, axis=1)
     assert np.allclose(edges, [7.547, 7.547, 6.096, 6.096], atol=1e-3)  # a kite
     segments = nursery.segments()
@@ -1374,7 +1380,7 @@ def test_smithy_has_a_chimney_breast_a_curtain_and_a_hearth_hiding_a_strip() -> 
     outline, interior = _outline("smithy", 8)
     assert np.allclose(interior, [90, 90, 90, 90, 270, 270, 90, 90])  # the breast's two reflex
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 48.96)
+    assert np.isclose(_signed_area(x, y), 48.96)
     assert walls["breast front"].length_m == 1.6 and np.isclose(walls["breast east"].length_m, 0.9)
     segments = smithy.segments()
     is_hearth = np.array([n.startswith("hearth") for n in names])
@@ -1418,7 +1424,7 @@ def test_theatre_is_a_fan_with_a_curved_back_a_doorway_and_a_bench_hiding_a_stri
                        atol=0.02)
     assert np.all(np.abs(interior - 90.0) > 3.5)   # no right angle
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 50.47, atol=0.01)
+    assert np.isclose(_signed_area(x, y), 50.47, atol=0.01)
     # a fan: the side walls splay from an apex 8.0 m behind the stage, the back wall four equal
     # chords of the circle about that apex through the back corners
     apex = np.array([-8.0, 4.0])
@@ -1481,7 +1487,7 @@ def test_stacks_have_two_shelves_making_look_alike_aisles_and_hiding_the_north_o
     assert np.isclose(interior[0], 90.0 - lean) and np.isclose(interior[3], 90.0 + lean)
     assert np.allclose(interior[[1, 2]], 90.0)     # only the east corners square
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 56.32)
+    assert np.isclose(_signed_area(x, y), 56.32)
     segments = stacks.segments()
     # two closed rigid 4.0 m x 0.4 m shelves parallel to the south wall, standing free, making
     # three aisles 2.0, 1.6 and 2.0 m wide over their length
@@ -1527,7 +1533,7 @@ def test_laundry_is_open_at_a_corner_and_has_a_free_standing_corner_screen() -> 
     outline, interior = _outline("laundry", 6)     # closed across the open corner
     assert np.allclose(interior, [90.0, 90.0, 130.91, 139.09, 135.0, 135.0], atol=0.01)
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 49.78)
+    assert np.isclose(_signed_area(x, y), 49.78)
     segments = laundry.segments()
     # the open corner: the north and west walls stop 1.2 m short of their corner, a mouth of
     # 1.70 m with nothing beyond (every wall on the room's side of it)
@@ -1570,7 +1576,7 @@ def test_stables_have_two_look_alike_loose_boxes_and_hide_the_back_of_the_east_o
     outline, interior = _outline("stables", 12)
     assert np.allclose(interior, [90, 90, 90, 270, 90, 90, 270, 270, 90, 90, 270, 90])
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 46.32)
+    assert np.isclose(_signed_area(x, y), 46.32)
     # a hall 10.0 m x 3.0 m and two loose boxes 2.4 m wide and 3.4 m deep off its north side,
     # open to it over their whole width, 2.0 m apart
     assert walls["east"].start[0] == 10.0 and np.isclose(walls["east"].length_m, 3.0)
@@ -1629,7 +1635,7 @@ def test_ambulatory_is_a_polygonal_ring_open_at_one_end_with_a_shrine_hiding_its
     assert np.allclose(interior, [77] + [154] * 4 + [77, 103] + [206] * 4 + [103], atol=0.01)
     assert np.all(np.abs(interior - 90.0) > 12.9)  # no right angle
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 48.92, atol=0.01)
+    assert np.isclose(_signed_area(x, y), 48.92, atol=0.01)
     # a ring: the outer wall five equal chords of the circle of radius 8.0 m about (7.3, -1.8),
     # the inner wall five of the circle of radius 4.4 m, every 26 deg from 25 to 155 deg; the
     # closed east end radial
@@ -1697,7 +1703,7 @@ def test_recording_studio_mixes_absorbing_and_glazed_walls_and_hides_the_live_ro
     outline, interior = _outline("recording", 6)
     assert np.allclose(interior, [90.0, 185.91, 77.08, 93.58, 183.43, 90.0], atol=0.01)
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 53.89)
+    assert np.isclose(_signed_area(x, y), 53.89)
     # the live room's walls splayed: no two of them (with the window) within 7 deg of parallel
     live = [names.index(n) for n in ("live south", "live east", "live north", "window")]
     a = _directions_deg("recording")[live]
@@ -1748,7 +1754,7 @@ def test_loggia_has_colonnades_of_unequal_piers_and_a_cross_wall_hiding_the_east
     outline, interior = _outline("loggia", 4)  # closed across the colonnades
     assert np.allclose(interior, 90.0)
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 45.0)
+    assert np.isclose(_signed_area(x, y), 45.0)
     # the colonnades: twelve short piers, all of different lengths (0.5-1.5 m), in line along
     # the south side (eight) and the east end (four), with gaps of 0.15-0.3 m and nothing beyond
     segments = loggia.segments()
@@ -1803,7 +1809,7 @@ def test_gangway_is_kinked_open_at_one_end_with_a_skewed_recess_hidden_behind_th
     assert np.allclose(interior, [80, 155, 102.5, 77.5, 235, 125, 55, 305, 205, 100], atol=0.02)
     assert np.all(np.abs(interior - 90.0) > 9.9) and np.all(np.abs(interior - 270.0) > 9.9)
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 42.55, atol=0.01)
+    assert np.isclose(_signed_area(x, y), 42.55, atol=0.01)
     # two legs 3.4 m wide, the second turned 25 deg north: leg 1's south wall 7.0 m, leg 2's
     # outer wall 5.0 m
     a = _directions_deg("gangway")
@@ -1872,7 +1878,7 @@ def test_showroom_has_mixed_walls_and_an_l_shaped_display_wall_to_loop_round() -
     outline, interior = _outline("showroom", 5)
     assert np.allclose(interior, [90, 90, 135, 135, 90])
     x, y = outline[:, 0], outline[:, 1]
-    assert np.isclose(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y), 51.82)
+    assert np.isclose(_signed_area(x, y), 51.82)
     assert np.isclose(walls["window"].length_m, 1.4 * np.sqrt(2.0))
     # the display wall: a closed L-shaped block 0.3 m thick (arms 3.2 m and 2.2 m), standing
     # free at least 1.4 m from every wall
