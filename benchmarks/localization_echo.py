@@ -111,6 +111,7 @@ from localization.sensor import (
     SensorConfig,
     SensorTables,
     build_tables,
+    heatmap_run,
     prepare_measurement,
     score_poses,
 )
@@ -250,19 +251,31 @@ class Feed:
     dt: FloatArray
     truth: FloatArray
     true_speed: FloatArray
+    #: the same blocks' heat maps on the echo model's denser bank
+    #: (``SensorConfig.heatmap_sonar``); None: the echo model reads ``hms`` too
+    hms_echo: list[HeatMap] | None = None
 
     @property
     def n(self) -> int:
         return len(self.hms)
 
+    def heat_maps(self, config: SensorConfig) -> list[HeatMap]:
+        """The heat maps the sensor model ``config`` reads."""
+        return self.hms_echo if config.model == "echo" and self.hms_echo is not None \
+            else self.hms
+
     def part(self, start: int, stop: int) -> Feed:
         return Feed(self.hms[start:stop], self.v[start:stop], self.w[start:stop],
-                    self.dt[start:stop], self.truth[start:stop], self.true_speed[start:stop])
+                    self.dt[start:stop], self.truth[start:stop], self.true_speed[start:stop],
+                    None if self.hms_echo is None else self.hms_echo[start:stop])
 
     @staticmethod
     def join(a: Feed, b: Feed) -> Feed:
-        return Feed(a.hms + b.hms, *(np.concatenate([getattr(a, k), getattr(b, k)])
-                                     for k in ("v", "w", "dt", "truth", "true_speed")))
+        echo = (None if a.hms_echo is None or b.hms_echo is None
+                else a.hms_echo + b.hms_echo)
+        v, w, dt, truth, true_speed = (np.concatenate([getattr(a, k), getattr(b, k)])
+                                       for k in ("v", "w", "dt", "truth", "true_speed"))
+        return Feed(a.hms + b.hms, v, w, dt, truth, true_speed, echo)
 
 
 @dataclasses.dataclass
@@ -281,10 +294,13 @@ def loc_run(case: SceneCase, path: str) -> LocRun:
     clean, _ = simulated(case, path, speed, SNR_DB)
     noisy = with_odometry_noise(clean, zlib.crc32(f"odometry:{path}".encode()))
     hms = [heatmap_of_run(noisy, k) for k in range(noisy.n_blocks)]
+    heard = heatmap_run(noisy, SensorConfig(model="echo"))    # the echo model's bank
+    hms_echo = None if heard is noisy else [heatmap_of_run(heard, k)
+                                            for k in range(noisy.n_blocks)]
     v, w, dt = block_odometry(noisy.speed_m_s, noisy.yaw_rate_rad_s, noisy.t_s,
                               noisy.config.block_s)
     return LocRun(path, case, speed, noisy.config,
-                  Feed(hms, v, w, dt, clean.pose.copy(), clean.speed_m_s.copy()))
+                  Feed(hms, v, w, dt, clean.pose.copy(), clean.speed_m_s.copy(), hms_echo))
 
 
 def scene_maps(case: SceneCase) -> dict[str, WallMap | str]:
@@ -410,9 +426,10 @@ class Trace:
 def drive(pf: ParticleFilter, feed: Feed) -> Trace:
     """Step ``pf`` through ``feed``, timing each ``step``."""
     poses, covs, status, fit, wall, cpu, modes, refined = [], [], [], [], [], [], [], []
+    hms = feed.heat_maps(pf.tables.config)
     for k in range(feed.n):
         t0, c0 = time.perf_counter(), time.process_time()
-        est = pf.step(feed.hms[k], float(feed.v[k]), float(feed.w[k]), float(feed.dt[k]))
+        est = pf.step(hms[k], float(feed.v[k]), float(feed.w[k]), float(feed.dt[k]))
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         poses.append(est.pose)
@@ -498,10 +515,11 @@ def truth_fits(tables: SensorTables, feed: Feed) -> FloatArray:
     out = np.full(feed.n, math.nan)
     if tables.config.model != "echo":
         return out
+    hms = feed.heat_maps(tables.config)
     for k in range(feed.n):
-        if feed.hms[k] is None:
+        if hms[k] is None:
             continue
-        m = prepare_measurement(feed.hms[k], tables.config)
+        m = prepare_measurement(hms[k], tables.config)
         if m.peaks is not None and m.n_peaks:
             out[k] = block_fit(tables, m, feed.truth[k])
     return out
@@ -756,9 +774,10 @@ def search_run(tables: SensorTables, lr: LocRun, images: Images, cap: int
     rows = []
     for k in chosen:
         t0 = time.perf_counter()
-        best, s_best = search_block(tables, feed.hms[k])
+        hm = feed.heat_maps(tables.config)[k]
+        best, s_best = search_block(tables, hm)
         truth = feed.truth[k]
-        s_truth = float(score_poses(tables, prepare_measurement(feed.hms[k], tables.config),
+        s_truth = float(score_poses(tables, prepare_measurement(hm, tables.config),
                                     truth[None])[0])
         pos, head = errors(best[None], truth[None])
         raw = bool(pos[0] <= TOL_M and head[0] <= SEARCH_TOL_RAD)

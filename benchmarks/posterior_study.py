@@ -35,7 +35,7 @@ import numpy as np
 from localization import posterior as post
 from localization.estimate import nees
 from localization.particle_filter import FilterConfig, ParticleFilter
-from localization.sensor import SensorConfig, SensorTables, build_tables
+from localization.sensor import SensorConfig, SensorTables, build_tables, heatmap_run
 from mapping.heatmap import heatmap_of_run
 from mapping.path import curve_path, polyline_path, stationary_path
 from mapping.run import Run
@@ -152,8 +152,9 @@ def pf_calibration(run: Run, tables: SensorTables, res: post.PosteriorResult,
     """Tracked particle filter over the same blocks; its final cloud against the posterior."""
     pf = ParticleFilter(tables, FilterConfig(n_particles=2000), np.random.default_rng(seed),
                         pose=run.pose[0], cov=np.diag([0.1**2, 0.1**2, math.radians(10) ** 2]))
+    heard = heatmap_run(run, tables.config)     # the bank the sensor model reads
     for k in range(run.n_blocks):
-        est = pf.step(heatmap_of_run(run, k), float(run.speed_m_s[k]),
+        est = pf.step(heatmap_of_run(heard, k), float(run.speed_m_s[k]),
                       float(run.yaw_rate_rad_s[k]), 0.0 if k == 0 else run.config.block_s)
     cal = post.compare_cloud(res, pf.poses, np.exp(pf.log_w - pf.log_w.max()), truth)
     return {"pf_mean": np.round(est.pose, 4).tolist(),

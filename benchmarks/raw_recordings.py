@@ -66,7 +66,7 @@ from benchmarks.localization_echo import (
 )
 from benchmarks.wall_maps import score_map
 from localization.particle_filter import block_odometry
-from localization.sensor import SensorConfig, build_tables
+from localization.sensor import SensorConfig, build_tables, heatmap_run
 from mapping.build import BuildParams, RunSource, build_map
 from mapping.heatmap import heatmap_of_run
 from mapping.path import (
@@ -199,7 +199,8 @@ def build(run: Run, name: str) -> WallMap | str:
 
 def feed_of(run: Run, truth_speed: np.ndarray, seed: int) -> Feed:
     noisy = with_odometry_noise(run, seed)
-    hms = [heatmap_of_run(noisy, k) for k in range(noisy.n_blocks)]
+    heard = heatmap_run(noisy, SensorConfig(model="echo"))  # the echo model's bank, its only reader
+    hms = [heatmap_of_run(heard, k) for k in range(noisy.n_blocks)]
     v, w, dt = block_odometry(noisy.speed_m_s, noisy.yaw_rate_rad_s, noisy.t_s,
                               noisy.config.block_s)
     return Feed(hms, v, w, dt, run.pose.copy(), truth_speed)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from localization.estimate import default_start_cov, track_metrics
 from localization.particle_filter import FilterConfig, ParticleFilter, block_fit, run_filter
-from localization.sensor import SensorTables, prepare_measurement
+from localization.sensor import SensorConfig, SensorTables, heatmap_run, prepare_measurement
 from mapping.heatmap import HeatMap, heatmap_of_run
 from mapping.run import Run
 
@@ -52,9 +52,10 @@ class CalibrationRun:
     truth: FloatArray
 
     @classmethod
-    def from_run(cls, run: Run) -> CalibrationRun:
-        """Heat maps of every block of a tracked run (:func:`mapping.heatmap.heatmap_of_run`),
-        its odometry and its tracked poses as the truth.
+    def from_run(cls, run: Run, sensor: SensorConfig | None = None) -> CalibrationRun:
+        """Heat maps of every block of a tracked run (:func:`mapping.heatmap.heatmap_of_run`,
+        with the bank the sensor model ``sensor`` reads, :func:`localization.sensor.heatmap_run`;
+        None: the run's own), its odometry and its tracked poses as the truth.
 
         Raises
         ------
@@ -63,7 +64,8 @@ class CalibrationRun:
         """
         if not np.all(np.isfinite(run.pose[0])):
             raise ValueError("a calibration run needs a tracked pose in its first block")
-        return cls(tuple(heatmap_of_run(run, k) for k in range(run.n_blocks)),
+        heard = run if sensor is None else heatmap_run(run, sensor)
+        return cls(tuple(heatmap_of_run(heard, k) for k in range(run.n_blocks)),
                    run.speed_m_s, run.yaw_rate_rad_s, run.t_s, run.config.block_s, run.pose)
 
 

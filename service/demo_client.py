@@ -41,7 +41,7 @@ def calibrate_map(map_path: Path, n_blocks: int | None) -> float:
 
     drive = simulate_default_run(HELD_OUT_PATH, seed=CALIBRATION_SEED, n_blocks=n_blocks)
     tables = build_tables(read_map(map_path), SensorConfig())
-    cal = calibrate_beta(tables, [CalibrationRun.from_run(drive)], CALIBRATION_BETAS,
+    cal = calibrate_beta(tables, [CalibrationRun.from_run(drive, tables.config)], CALIBRATION_BETAS,
                          FilterConfig(n_particles=1000), np.random.default_rng(0), n_seeds=1)
     table = ", ".join(f"{b:g}: {q:.1f}" for b, q in zip(cal.betas, cal.nees_mean, strict=True))
     print(f"calibration drive ({HELD_OUT_PATH}, seed {CALIBRATION_SEED}): mean NEES per beta "

@@ -59,7 +59,8 @@ class Localizer:
         self.last_heatmap: HeatMap | None = None
 
     def update(self, block: BlockInput) -> PoseEstimate:
-        hm = block_heatmap(block, self.config)
+        # the echo model reads a denser bank than the map's (SensorConfig.heatmap_sonar)
+        hm = block_heatmap(block, self.tables.config.heatmap_sonar(self.config))
         if self.keep_heatmap:
             self.last_heatmap = hm
         return self.filter.step(hm, block.speed_m_s, block.yaw_rate_rad_s, block.dt_s)

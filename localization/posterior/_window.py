@@ -20,7 +20,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from localization.sensor import SensorTables, pose_log_likelihood, prepare_measurement
+from localization.sensor import (
+    SensorTables,
+    heatmap_run,
+    pose_log_likelihood,
+    prepare_measurement,
+)
 from mapping.angles import wrap_angle
 from mapping.heatmap import HeatMap, heatmap_of_run
 from mapping.run import Run
@@ -267,12 +272,14 @@ def window_from_run(
 ) -> tuple[LogLikelihood, FloatArray]:
     """Window log-likelihood of blocks ``start..stop-1`` of a run, and the anchor's true pose.
 
-    Heat maps come from :func:`mapping.heatmap.heatmap_of_run` (paper eq. 1), odometry from
+    Heat maps come from :func:`mapping.heatmap.heatmap_of_run` (paper eq. 1, with the bank
+    the sensor model reads: :func:`localization.sensor.heatmap_run`), odometry from
     the run; the parameter is the pose of block ``start + anchor``, whose tracked pose (3,)
     is returned too (NaN where untracked).
     """
     check_block_range(start, stop, run.n_blocks)
-    heat_maps = [heatmap_of_run(run, k) for k in range(start, stop)]
+    heard = heatmap_run(run, tables.config)     # the bank the sensor model reads
+    heat_maps = [heatmap_of_run(heard, k) for k in range(start, stop)]
     loglik = sensor_window_log_likelihood(
         tables, heat_maps, run.speed_m_s[start:stop], run.yaw_rate_rad_s[start:stop],
         run.config.block_s, anchor)

@@ -14,7 +14,9 @@ endpoint sigma (`soft_end_walls`, `end_weights`). The likelihood is tempered and
 
 Entry points: `SensorConfig`; `build_tables` (`SensorTables`: lookup tables of one map) and
 `free_space_mask`; `prepare_measurement` (`Measurement`: a heat map checked and reduced to its
-strongest entries), `validate_block`, `validate_heatmap`, `uses_direction`; scoring
+strongest entries), `heatmap_run` (a run with the sonar settings the model's heat maps are
+made with: the echo model reads a denser bank, `SensorConfig.heatmap_sonar`),
+`validate_block`, `validate_heatmap`, `uses_direction`; scoring
 `score_poses`, `score_cells_all_headings` (every heading at once by FFT), `log_likelihood`,
 `pose_log_likelihood`, `polar_prediction`; `predicted_echoes` (the echo model's forward
 prediction at poses, used by the refinement).
@@ -45,6 +47,7 @@ from localization.sensor._echo import (
 )
 from localization.sensor._measurement import (
     Measurement,
+    heatmap_run,
     prepare_measurement,
     uses_direction,
     validate_block,
@@ -74,6 +77,7 @@ from localization.sensor._tables import (
 __all__ = [
     "ECHO_NATS",
     "Explanation",
+    "heatmap_run",
     "cos_sigma",
     "echo_proposals",
     "pair_proposals",

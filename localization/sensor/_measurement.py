@@ -3,6 +3,7 @@ see :mod:`localization.sensor`."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -12,6 +13,7 @@ from numpy.typing import NDArray
 from localization.sensor._config import Model, SensorConfig
 from localization.sensor._kernels import _EchoPeaks
 from mapping.heatmap import HeatMap
+from mapping.run import Run
 from mapping.walls import PeakParams, Peaks, heatmap_peaks
 
 FloatArray = NDArray[np.float64]
@@ -55,6 +57,15 @@ class Measurement:
     def n_peaks(self) -> int:
         """Echo peaks read off the block (echo model; 0 otherwise)."""
         return 0 if self.peaks is None else int(self.peaks.r.shape[0])
+
+
+def heatmap_run(run: Run, config: SensorConfig) -> Run:
+    """``run`` as the sensor model ``config`` hears it: its heat maps
+    (:func:`mapping.heatmap.heatmap_of_run`) are made with
+    :meth:`SensorConfig.heatmap_sonar` (the echo model's denser bank); the run itself
+    when that is its own sonar."""
+    sonar = config.heatmap_sonar(run.config)
+    return run if sonar == run.config else dataclasses.replace(run, config=sonar)
 
 
 def validate_heatmap(heat_map: HeatMap) -> None:
@@ -181,6 +192,20 @@ def _log_levels(value: FloatArray) -> FloatArray:
     return np.ascontiguousarray(np.log(np.maximum(v, 1e-12 * top) / top))
 
 
+#: Half-width (rad) of the echo model's local-maximum window across directions: the
+#: default :class:`mapping.walls.PeakParams` window (2 rows) on the paper's 29-direction bank.
+PEAK_ANGLE_WINDOW_RAD = 2.0 * math.pi / 29
+
+
+def peak_angle_window(heat_map: HeatMap) -> int:
+    """Half-width in rows of the echo model's peak window on ``heat_map``'s bank: the same
+    angle, ``PEAK_ANGLE_WINDOW_RAD``, whatever the bank's density (2 rows on 29 directions,
+    4 on the echo model's 58), so a denser bank finds the same peaks, not their sidelobes."""
+    a = np.asarray(heat_map.angles_rad, dtype=np.float64)
+    step = float(a[-1] - a[0]) / max(a.size - 1, 1)
+    return max(1, round(PEAK_ANGLE_WINDOW_RAD / step)) if step > 0 else 1
+
+
 def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool) -> Measurement:
     """The echo model's measurement: the block's strongest heat-map peaks
     (:func:`mapping.walls.heatmap_peaks`), each with unit weight, and the kernel widths.
@@ -192,10 +217,11 @@ def _echo_measurement(heat_map: HeatMap, config: SensorConfig, directional: bool
     depends on the sonar (carrier, block length), which the scorer knows: ``sig_c`` here
     is only the floor ``cos_sigma_min``.
     """
-    rows = 1 if directional else int(np.asarray(heat_map.H).shape[0])
+    n_rows = int(np.asarray(heat_map.H).shape[0])
+    rows = 1 if directional else n_rows
     params = PeakParams(snr=config.peak_snr, min_relative=0.08, min_range_m=config.min_range_m,
                         max_range_m=config.max_range_m, max_peaks=config.peaks_read * rows,
-                        min_speed_m_s=0.0)
+                        min_speed_m_s=0.0, angle_window=peak_angle_window(heat_map))
     # only the lags up to the sensor's range (plus the peak window) can hold a peak it reads
     cols = min(int(np.searchsorted(heat_map.ranges_m, config.max_range_m)) + 2 * 12 + 1,
                heat_map.H.shape[1])

@@ -65,7 +65,13 @@ def _cmd_localize(args: argparse.Namespace) -> int:
     from localization.estimate import default_start_cov, track_metrics
     from localization.grid_filter import GridFilter
     from localization.particle_filter import FilterConfig, ParticleFilter, Steppable, run_filter
-    from localization.sensor import SensorConfig, build_tables, resolve_model, validate_block
+    from localization.sensor import (
+        SensorConfig,
+        build_tables,
+        heatmap_run,
+        resolve_model,
+        validate_block,
+    )
     from mapping.angles import pose_error
     from mapping.files import read_map, read_run
     from mapping.heatmap import heatmap_of_run
@@ -96,6 +102,8 @@ def _cmd_localize(args: argparse.Namespace) -> int:
                                                    open_map_global=args.open_map),
                               np.random.default_rng(args.seed), pose=pose0, cov=cov0)
 
+    heard = heatmap_run(run, tables.config)   # the echo model reads a denser bank
+
     def heat_maps():  # type: ignore[no-untyped-def]
         for k in range(run.n_blocks):
             try:
@@ -104,7 +112,7 @@ def _cmd_localize(args: argparse.Namespace) -> int:
                 print(f"block {k}: {exc}; predicting only", file=sys.stderr)
                 yield None
                 continue
-            yield heatmap_of_run(run, k)
+            yield heatmap_of_run(heard, k)
 
     rows, poses, covs = [], [], []
     if not args.json:
@@ -252,7 +260,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     runs = []
     for path in args.runs:
         try:
-            runs.append(CalibrationRun.from_run(read_run(path)))
+            runs.append(CalibrationRun.from_run(read_run(path), tables.config))
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
     if args.widen < 0:

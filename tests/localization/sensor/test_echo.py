@@ -27,6 +27,7 @@ from localization.sensor import (
     echo_proposals,
     end_weights,
     explanation,
+    heatmap_run,
     map_range_sigma,
     pair_proposals,
     prepare_measurement,
@@ -42,9 +43,11 @@ from localization.sensor._kernels import (  # only to compare the kernels with t
     score_echo,
 )
 from mapping.forward import ForwardParams, WallSet, echoes, echoes_batch, predicted_heatmap
-from mapping.heatmap import doppler_heatmap
+from mapping.heatmap import doppler_heatmap, heatmap_of_run
 from mapping.path import PAPER_SPEED_M_S
 from mapping.signal import SonarConfig
+from mapping.synthetic import Wall as SyntheticWall
+from mapping.synthetic import run_truth, synthetic_run
 from mapping.wallmap import WallMap, wallmap_from_walls
 from tests.localization.helpers import ASYMMETRIC_ROOM
 from tests.localization.sensor.naive import end_weights_numpy, map_sigma_numpy, naive_echo
@@ -476,6 +479,7 @@ def test_free_at_and_covered_read_the_nearest_cell() -> None:
     ("max_peaks", 0), ("max_peaks", 201),
     ("peak_snr", -1.0), ("peak_snr", 1001.0),
     ("amplitude_sigma", -0.1), ("amplitude_sigma", 10.5), ("amplitude_sigma", math.nan),
+    ("echo_bank_oversample", 0), ("echo_bank_oversample", 9), ("echo_bank_oversample", 1.5),
 ])
 def test_echo_settings_are_validated(field: str, value: float) -> None:
     bad: dict[str, Any] = {field: value}
@@ -657,3 +661,43 @@ def test_floor_and_ceiling_copies_explain_the_ghosts_of_a_3d_room() -> None:
         np.testing.assert_array_equal(
             explanation(off, prepare_measurement(hm, tall), run.pose[k][None]).log_likelihood,
             ex["3d"].log_likelihood)
+
+
+def test_the_echo_model_reads_a_bank_twice_the_maps() -> None:
+    assert ECHO.heatmap_sonar(SONAR) == dataclasses.replace(SONAR, directions=58)
+    # the G models compare with G, built from the map's own bank; 1 keeps it for the echo model
+    assert SensorConfig().heatmap_sonar(SONAR) is SONAR
+    assert SensorConfig(model="echo", echo_bank_oversample=1).heatmap_sonar(SONAR) is SONAR
+    run = synthetic_run(SONAR, SyntheticWall(1.5, math.radians(60.0)), 0.15, n_blocks=3)
+    assert heatmap_run(run, SensorConfig()) is run
+    heard = heatmap_run(run, ECHO)
+    assert heard.config.directions == 58 and heard.samples is run.samples
+    assert heatmap_of_run(heard, 1).H.shape[0] == 59
+
+
+@pytest.mark.parametrize("deg", [84.0, 87.5, 91.25, 95.0])
+def test_the_echo_models_bank_reads_a_broadside_cosine_within_the_refinement_floor(
+        deg: float) -> None:
+    # Against the analytic echo of one wall near broadside at 0.15 m/s (mapping.synthetic):
+    # on the map's 29 rows the parabola between rows pulls the cosine towards the nearest
+    # row (tests/mapping/walls/test_walls.py); on the echo model's own bank
+    # (SensorConfig.heatmap_sonar) it is read within the refinement's cos_floor (0.006),
+    # as one peak: the peak window spans the same angle on either bank, so the denser bank
+    # adds no sidelobe peaks.
+    run = synthetic_run(SONAR, SyntheticWall(1.5, math.radians(deg)), 0.15, n_blocks=3)
+    truth = math.cos(run_truth(run, 1).angle_rad)
+    fine = prepare_measurement(heatmap_of_run(heatmap_run(run, ECHO), 1), ECHO)
+    coarse = prepare_measurement(heatmap_of_run(run, 1), ECHO)
+    assert fine.peaks is not None and coarse.peaks is not None
+    near = lambda m: np.flatnonzero(np.abs(m.peaks.r - 1.5) < 0.05)  # noqa: E731
+    assert near(fine).size == near(coarse).size == 1
+    assert abs(fine.peaks.c[near(fine)[0]] - truth) < 0.006
+    assert abs(fine.peaks.c[near(fine)[0]] - truth) <= abs(coarse.peaks.c[near(coarse)[0]] - truth)
+
+
+def test_the_peak_window_spans_the_same_angle_on_any_bank() -> None:
+    from localization.sensor._measurement import peak_angle_window
+    for directions, rows in ((29, 2), (58, 4), (87, 6), (10, 1)):
+        cfg = dataclasses.replace(SONAR, directions=directions)
+        hm = doppler_heatmap(np.random.default_rng(0).normal(size=cfg.block_samples), 0.15, cfg)
+        assert peak_angle_window(hm) == rows
