@@ -4,13 +4,15 @@ Data: every built-in scene (``paper``, ``shoebox``, ``l-room``, ``corridor``, ``
 every held-out scene of ``scenes/paths.json`` (every group: "held-out", "fresh", "fresh14",
 "fresh14b", "fresh14c", "fresh14d", "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i",
 "fresh14j", "fresh14k", "fresh14l", "fresh14m", "fresh14n", "fresh14o", "fresh14p",
-"fresh14q").
+"fresh14q", "fresh14r").
 Per scene the mapping path (``paper-b``, else ``<scene>-curve``) is simulated clean at 0.1 m/s and
 mapped twice: method ``walls`` (fitted walls, for the echo model) and ``paper`` (G, for the
 correlation model); a third, ideal map is the scene's true walls (``wallmap_from_walls``, echo
 model only). Every OTHER path of the scene is localized: simulated at SNR 10 dB and a speed in
 0.10-0.15 m/s, with odometry noise added to the run's odometry (speed N(0, 5 mm/s), yaw rate
-N(0, 0.005 rad/s); the heat maps are made with the noisy speed, as a robot would). The image-
+N(0, 0.005 rad/s); the heat maps are made with the noisy speed, as a robot would, on the map's
+29-row bank for the G models and on the echo model's own 58 rows,
+``SensorConfig.heatmap_sonar``). The image-
 source engine runs with the automatic order capped at 3 and paths up to 12 m (as
 ``benchmarks.wall_maps``: ``max_path_m``). Runs and maps are cached in
 ``out/localization_echo/`` (simulation and map building are never timed; a map's cache key
@@ -1072,6 +1074,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "map_speed_m_s": MAP_SPEED_M_S, "loc_speeds_m_s": list(LOC_SPEEDS_M_S),
         "odometry_noise": {"speed_sd_m_s": ODO_SPEED_SD_M_S, "yaw_sd_rad_s": ODO_YAW_SD_RAD_S},
         "sonar": SonarConfig().to_dict(), "filter": json.loads(FilterConfig().to_json()),
+        "echo_bank_directions": SensorConfig(model="echo").heatmap_sonar(SonarConfig()).directions,
         "tolerances": {"success_m": TOL_M, "success_deg": math.degrees(TOL_RAD),
                        "search_deg": math.degrees(SEARCH_TOL_RAD),
                        "within_blocks": WITHIN_BLOCKS, "confidently_wrong_m": CW_M,
