@@ -9,7 +9,7 @@ The scenes are hand-written scene JSON files in the top-level ``scenes/`` folder
                               | "fresh14d" | "fresh14e" | "fresh14f" | "fresh14g"
                               | "fresh14h" | "fresh14i" | "fresh14j" | "fresh14k"
                               | "fresh14l" | "fresh14m" | "fresh14n" | "fresh14o"
-                              | "fresh14p" | "fresh14q"},
+                              | "fresh14p" | "fresh14q" | "fresh14r"},
      ...}
 
 ``line`` is :func:`mapping.path.polyline_path` through the points (straight segments with
@@ -34,8 +34,9 @@ them, ``"fresh14l"`` at the start of session 34, before any measurement on them,
 ``"fresh14m"`` at the start of session 35, before any measurement on them, ``"fresh14n"`` at
 the start of session 37, before any measurement on them, ``"fresh14o"`` in session 39,
 before any measurement on them, ``"fresh14p"`` in session 41, before any measurement on
-them, and ``"fresh14q"`` in session 42, before any measurement on them (nothing was
-run on any of these before they were committed).
+them, ``"fresh14q"`` in session 42, before any measurement on them, and ``"fresh14r"`` in
+session 43, before any measurement on them (nothing was run on any of these before they were
+committed).
 This loader lives here, not in ``mapping``, so the package never reads files by path.
 """
 
@@ -58,7 +59,7 @@ PATH_KINDS = ("line", "curve", "loop")
 PATH_GROUPS = ("held-out", "fresh", "fresh14", "fresh14b", "fresh14c", "fresh14d",
                "fresh14e", "fresh14f", "fresh14g", "fresh14h", "fresh14i", "fresh14j",
                "fresh14k", "fresh14l", "fresh14m", "fresh14n", "fresh14o", "fresh14p",
-               "fresh14q")
+               "fresh14q", "fresh14r")
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ FRESH14N = ("vault", "nursery", "smithy")  # written at the start of session 37:
 FRESH14O = ("theatre", "stacks", "laundry")  # written in session 39: "fresh14o"
 FRESH14P = ("stables", "ambulatory", "recording")  # written in session 41: "fresh14p"
 FRESH14Q = ("loggia", "gangway", "showroom")  # written in session 42: "fresh14q"
+FRESH14R = ("ropewalk", "conservatory", "pavilion")  # written in session 43: "fresh14r"
 #: Narrow rooms whose mapped run weaves rather than turns: least heading sweep, degrees.
 WEAVES = {"long-corridor": 60.0, "ward": 30.0}
 SCENES = heldout_scene_names()
@@ -127,6 +128,15 @@ INTERIOR = {
     "gangway": [(0.0, 0.0), (7.0, 0.0), (11.5315, 2.1131), (10.7778, 5.5131), (9.5089, 4.9214),
                 (7.8635, 5.8714), (5.5071, 4.7726), (7.1525, 3.8226), (6.2462, 3.4), (0.6, 3.4)],
     "showroom": [(0.0, 0.0), (8.8, 0.0), (8.8, 4.6), (7.4, 6.0), (0.0, 6.0)],
+    "ropewalk": [(0.0, 0.0), (8.4, 0.0), (8.4, -2.4), (10.4, -2.4), (10.4, 0.0), (12.0, 0.0),
+                 (12.0, 3.6), (0.0, 4.6)],
+    "conservatory": [(0.0, 0.0), (9.6, 0.0), (9.6, 5.0), (9.2, 4.7172), (8.8, 4.6), (8.4, 4.7172),
+                     (8.0, 5.0), (7.6, 5.2828), (7.2, 5.4), (6.8, 5.2828), (6.4, 5.0),
+                     (6.0, 4.7172), (5.6, 4.6), (5.2, 4.7172), (4.8, 5.0), (4.4, 5.2828),
+                     (4.0, 5.4), (3.6, 5.2828), (3.2, 5.0), (2.8, 4.7172), (2.4, 4.6),
+                     (2.0, 4.7172), (1.6, 5.0), (1.2, 5.2828), (0.8, 5.4), (0.4, 5.2828),
+                     (0.0, 5.0)],
+    "pavilion": [(1.0, 0.0), (9.4, 0.0), (9.4, 6.0), (1.0, 6.0), (0.0, 5.0), (0.0, 1.0)],
 }
 
 
@@ -169,6 +179,7 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
     assert set(FRESH14L) <= set(SCENES) and set(FRESH14M) <= set(SCENES)
     assert set(FRESH14N) <= set(SCENES) and set(FRESH14O) <= set(SCENES)
     assert set(FRESH14P) <= set(SCENES) and set(FRESH14Q) <= set(SCENES)
+    assert set(FRESH14R) <= set(SCENES)
     for name in PATHS:
         spec = heldout_path(name)
         expected = ("fresh" if spec.scene in FRESH
@@ -188,7 +199,8 @@ def test_the_fresh_scenes_are_there_and_only_their_paths_are_fresh() -> None:
                     else "fresh14n" if spec.scene in FRESH14N
                     else "fresh14o" if spec.scene in FRESH14O
                     else "fresh14p" if spec.scene in FRESH14P
-                    else "fresh14q" if spec.scene in FRESH14Q else "held-out")
+                    else "fresh14q" if spec.scene in FRESH14Q
+                    else "fresh14r" if spec.scene in FRESH14R else "held-out")
         assert spec.group == expected
 
 
@@ -608,7 +620,8 @@ def _seen(points: np.ndarray, seen_from: np.ndarray, walls: np.ndarray) -> np.nd
 @pytest.mark.parametrize(("group", "scenes", "shortest_m"), [
     ("fresh14j", FRESH14J, 8.0), ("fresh14k", FRESH14K, 8.0),
     ("fresh14l", FRESH14L, 7.0), ("fresh14m", FRESH14M, 7.0), ("fresh14n", FRESH14N, 7.0),
-    ("fresh14o", FRESH14O, 7.0), ("fresh14p", FRESH14P, 7.0), ("fresh14q", FRESH14Q, 7.0)])
+    ("fresh14o", FRESH14O, 7.0), ("fresh14p", FRESH14P, 7.0), ("fresh14q", FRESH14Q, 7.0),
+    ("fresh14r", FRESH14R, 7.0)])
 def test_a_fresh_groups_nine_paths_have_their_length(
         group: str, scenes: tuple[str, ...], shortest_m: float) -> None:
     """Each group's three rooms have three paths each, all of the group, shortest_m to 10 m."""
@@ -1915,6 +1928,202 @@ def test_showroom_has_mixed_walls_and_an_l_shaped_display_wall_to_loop_round() -
     _line_in_sight("showroom-line", "showroom-curve", curve, segments, apart_deg=60.0)
 
 
+def _oblique_line(name: str) -> tuple[str, float, float]:
+    """For the straight two-point path ``name``: the long wall (3 m or longer) nearest to it on
+    average along its length, the path's angle to that wall and its least angle to any wall of
+    its scene (degrees, modulo 180, so in [0, 90])."""
+    spec = heldout_path(name)
+    assert spec.kind == "line" and len(spec.points_m) == 2
+    d = spec.points_m[1] - spec.points_m[0]
+    gap = np.abs(np.degrees(np.arctan2(d[1], d[0])) % 180.0 - _directions_deg(spec.scene))
+    gap = np.minimum(gap, 180.0 - gap)
+    scene = heldout_scene(spec.scene)
+    segments = scene.segments()
+    line = _positions(name, 300)
+    mean_m = np.array([distance_to_walls(line, segments[[k]]).mean() for k in range(len(segments))])
+    long = np.array([w.length_m >= 3.0 for w in scene.walls])
+    nearest = int(np.argmin(np.where(long, mean_m, np.inf)))
+    return scene.walls[nearest].name, float(gap[nearest]), float(gap.min())
+
+
+def test_ropewalk_is_a_hall_whose_long_walls_converge_with_a_store_bay_out_of_sight() -> None:
+    ropewalk = heldout_scene("ropewalk")
+    walls = {w.name: w for w in ropewalk.walls}
+    names = list(walls)
+    assert {n: w.reflection for n, w in walls.items() if w.reflection is not None} == {
+        "bay back": 0.3, "north": 0.8, "west": 0.5}
+    # the long walls converge: the hall narrows from 4.6 m (west end) to 3.6 m (east end) over
+    # 12.0 m, the north wall 4.76 deg off the straight south wall
+    converge = np.degrees(np.arctan2(4.6 - 3.6, 12.0))
+    assert 3.0 < converge < 6.0 and np.isclose(converge, 4.764, atol=1e-3)
+    outline, interior = _outline("ropewalk", 8)
+    assert np.allclose(interior, [90, 270, 90, 90, 270, 90, 90 + converge, 90 - converge])
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(_signed_area(x, y), 54.0)  # 49.2 m^2 the hall, 4.8 m^2 the bay
+    a = _directions_deg("ropewalk")
+    assert np.allclose(a[[names.index("south"), names.index("south east")]], 0.0)
+    assert np.isclose(180.0 - a[names.index("north")], converge)
+    assert np.isclose(walls["west"].length_m, 4.6) and np.isclose(walls["east"].length_m, 3.6)
+    assert np.isclose(walls["south"].length_m + 2.0 + walls["south east"].length_m, 12.0)
+    # the store bay: 2.0 m wide and 2.4 m deep off the south wall (x 8.4-10.4), 1.6 m from the
+    # east wall
+    assert walls["bay west"].start == (8.4, 0.0) and walls["bay east"].end == (10.4, 0.0)
+    bay_m = [walls[n].length_m for n in ("bay west", "bay back", "bay east", "south east")]
+    assert np.allclose(bay_m, [2.4, 2.0, 2.4, 1.6])
+    # the mapped curve: the west part only (never east of x = 5.5, 2.9 m short of the bay), low
+    # at its east end; a line down the bay's west side, x = 8.95, y -0.6 to -1.9, is out of its
+    # sight (control: without the south wall and the bay's west side all in sight)
+    segments = ropewalk.segments()
+    curve = _positions("ropewalk-curve")
+    assert curve[:, 0].max() < 5.51 and curve[curve[:, 0] > 4.0, 1].max() < 1.5
+    blocking = np.array([n in ("south", "bay west") for n in names])
+    strip = np.column_stack([np.full(12, 8.95), np.linspace(-0.6, -1.9, 12)])
+    assert distance_to_walls(strip, segments).min() > 0.49
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~blocking]).all()
+    # ropewalk-bay: down the bay's west side to its back, more than 1.5 m of it out of the
+    # curve's sight (none without those walls), more than 4.5 m from the curve
+    bay = _positions("ropewalk-bay")
+    assert bay[-1, 1] < -1.8 and 8.4 < bay[-1, 0] < 10.4
+    _leaves_sight("ropewalk-bay", curve, segments, ~blocking, hidden_m=1.5, far_m=4.5)
+    # ropewalk-line: straight the length of the hall, 3.8 deg oblique to the south wall, its
+    # nearest long wall (8.6 deg to the converging north wall, no wall nearer parallel), all of
+    # it in the curve's sight, at least 60 deg from every heading of the curve
+    wall, oblique, least = _oblique_line("ropewalk-line")
+    assert wall == "south" and 2.0 <= oblique <= 12.0 and np.isclose(oblique, 3.795, atol=1e-3)
+    assert least == oblique and np.isclose(oblique + converge, 8.559, atol=1e-3)
+    line = _positions("ropewalk-line", 300)
+    assert line[:, 0].min() < 1.5 and line[:, 0].max() > 11.0
+    _line_in_sight("ropewalk-line", "ropewalk-curve", curve, segments, apart_deg=60.0)
+    lengths = [heldout_path(f"ropewalk-{p}").trajectory().length_m
+               for p in ("curve", "line", "bay")]
+    assert np.allclose(lengths, [7.24, 9.82, 8.01], atol=0.01)
+
+
+def test_conservatory_has_a_serpentine_glazed_wall_and_a_crescent_screen_hiding_its_hollow(
+        ) -> None:
+    conservatory = heldout_scene("conservatory")
+    walls = {w.name: w for w in conservatory.walls}
+    names = list(walls)
+    glass = [n for n in names if n.startswith("glass")]
+    screen = [n for n in names if n.startswith("screen")]
+    assert len(glass) == 24 and len(screen) == 4 and len(names) == 31
+    reflections = {n: w.reflection for n, w in walls.items() if w.reflection is not None}
+    assert reflections == {"west": 0.4, **{n: 0.8 for n in glass}, **{n: 0.6 for n in screen}}
+    assert walls["south"].reflection is None and walls["east"].reflection is None  # brick
+    outline, interior = _outline("conservatory", 27)
+    assert np.allclose(interior[:2], 90.0) and np.allclose(interior[[2, -1]], [54.74, 125.26],
+                                                              atol=0.01)
+    assert np.all((interior[3:-1] > 147.3) & (interior[3:-1] < 212.7))  # the serpentine's own
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(_signed_area(x, y), 48.0)
+    # the serpentine wall: 24 chords 0.4 m apart in x, their corners on y = 5.0 + 0.4 sin(2 pi x
+    # / 3.2) to 1e-4 m, three whole waves from the east wall to the west wall, 0.4 m either side
+    # of y = 5.0; chords at 16.33 or 35.26 deg either way to the south wall
+    segments = conservatory.segments()
+    is_glass = np.array([n.startswith("glass") for n in names])
+    chords = segments[is_glass]
+    assert np.allclose(chords[1:, 0], chords[:-1, 1])  # joined end to end
+    corners = np.concatenate([chords[:, 0], chords[-1:, 1]])
+    assert np.allclose(corners[:, 0], np.linspace(9.6, 0.0, 25))
+    assert np.allclose(corners[:, 1], 5.0 + 0.4 * np.sin(2.0 * np.pi * corners[:, 0] / 3.2),
+                       atol=1e-4)
+    assert np.isclose(corners[:, 1].max(), 5.4) and np.isclose(corners[:, 1].min(), 4.6)
+    tilt = _directions_deg("conservatory")[is_glass]
+    tilt = np.minimum(tilt, 180.0 - tilt)
+    assert np.allclose(np.sort(np.unique(np.round(tilt, 2))), [16.33, 35.26])
+    # the crescent screen: four chords (0.776 m) of a circle of radius 1.5 m about (6.7, 2.9)
+    # spanning 120 deg, its hollow open to the east, both ends free
+    is_screen = np.array([n.startswith("screen") for n in names])
+    crescent = segments[is_screen]
+    assert np.allclose(crescent[1:, 0], crescent[:-1, 1])
+    bends = np.concatenate([crescent[:, 0], crescent[-1:, 1]])
+    centre = np.array([6.7, 2.9])
+    assert np.allclose(np.linalg.norm(bends - centre, axis=1), 1.5, atol=1e-4)
+    about = np.degrees(np.arctan2(bends[:, 1] - centre[1], bends[:, 0] - centre[0])) % 360.0
+    assert np.allclose(about, [120, 150, 180, 210, 240], atol=0.01)
+    assert np.allclose(np.linalg.norm(crescent[:, 1] - crescent[:, 0], axis=1), 0.776, atol=1e-3)
+    ends = distance_to_walls(bends[[0, -1]], segments[~is_screen])
+    assert np.allclose(ends, [0.483, 1.601], atol=1e-3)  # the glazed wall, the south wall
+    # the mapped curve: the west part only (never east of x = 3.7, 1.5 m short of the screen);
+    # a line across the hollow, x = 6.4, y 2.4-3.4, is out of its sight (control: without the
+    # screen all in sight)
+    curve = _positions("conservatory-curve")
+    assert curve[:, 0].max() < 3.7 and bends[:, 0].min() - curve[:, 0].max() > 1.5
+    strip = np.column_stack([np.full(12, 6.4), np.linspace(2.4, 3.4, 12)])
+    assert distance_to_walls(strip, segments).min() > 0.85
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_screen]).all()
+    # conservatory-behind: below the screen, up the east side and west into the hollow, more than
+    # 2.3 m of it out of the curve's sight (none without the screen), ending in the hollow
+    behind = _positions("conservatory-behind")
+    assert np.linalg.norm(behind[-1] - centre) < 0.3
+    _leaves_sight("conservatory-behind", curve, segments, ~is_screen, hidden_m=2.3, far_m=4.2)
+    assert not _seen(behind[-1:], curve, segments).any()  # ends out of sight
+    # conservatory-line: along the brick south wall, 5.3 deg oblique to it, its nearest long
+    # wall (11.0 deg to the nearest glass chords), all of it in the curve's sight, at least
+    # 60 deg from every heading of the curve
+    wall, oblique, least = _oblique_line("conservatory-line")
+    assert wall == "south" and 2.0 <= oblique <= 12.0 and np.isclose(oblique, 5.290, atol=1e-3)
+    assert least == oblique and np.isclose(16.33 - oblique, 11.04, atol=0.01)
+    _line_in_sight("conservatory-line", "conservatory-curve", curve, segments, apart_deg=60.0)
+    lengths = [heldout_path(f"conservatory-{p}").trajectory().length_m
+               for p in ("curve", "line", "behind")]
+    assert np.allclose(lengths, [7.38, 8.13, 8.95], atol=0.01)
+
+
+def test_pavilion_has_canted_glazed_doors_and_a_cruciform_screen_hiding_its_east_pockets() -> None:
+    pavilion = heldout_scene("pavilion")
+    walls = {w.name: w for w in pavilion.walls}
+    names = list(walls)
+    arms = [n for n in names if n.startswith("screen")]
+    reflections = {n: w.reflection for n, w in walls.items() if w.reflection is not None}
+    assert reflections == {"south": 0.4, "north-west": 0.8, "south-west": 0.8,
+                           **{n: 0.5 for n in arms}}
+    outline, interior = _outline("pavilion", 6)
+    assert np.allclose(interior, [135, 90, 90, 135, 135, 135])
+    x, y = outline[:, 0], outline[:, 1]
+    assert np.isclose(_signed_area(x, y), 55.4)  # 9.4 m x 6.0 m less two 1.0 m corners
+    for door in ("north-west", "south-west"):
+        assert np.isclose(walls[door].length_m, np.sqrt(2.0))
+    # the cruciform screen: four arms 1.3 m long from one point, (5.4, 3.0), at right angles and
+    # along the room's axes, their free ends 1.7 m or more from every wall
+    segments = pavilion.segments()
+    is_arm = np.array([n.startswith("screen") for n in names])
+    cross = segments[is_arm]
+    assert len(cross) == 4 and np.allclose(cross[:, 0], [5.4, 3.0])
+    assert np.allclose(np.linalg.norm(cross[:, 1] - cross[:, 0], axis=1), 1.3)
+    assert np.allclose(_directions_deg("pavilion")[is_arm], [0, 90, 0, 90])
+    assert np.allclose(np.sum(cross[:, 1] - cross[:, 0], axis=0), 0.0)  # opposite in pairs
+    ends = distance_to_walls(cross[:, 1], segments[~is_arm])
+    assert np.allclose(ends, [2.7, 1.7, 3.0, 1.7])
+    # the mapped curve: the west part only (never east of x = 3.45, 0.7 m short of the west
+    # arm); a line in the north-east pocket, y = 3.7, x 5.95-6.6, is out of its sight
+    # (control: without the screen all in sight)
+    curve = _positions("pavilion-curve")
+    assert curve[:, 0].max() < 3.45
+    strip = np.column_stack([np.linspace(5.95, 6.6, 12), np.full(12, 3.7)])
+    assert distance_to_walls(strip, segments).min() > 0.54
+    assert not _seen(strip, curve, segments).any()
+    assert _seen(strip, curve, segments[~is_arm]).all()
+    # pavilion-pocket: below the south arm's end, up the east side past the east arm's end and
+    # into the north-east pocket; more than 2.8 m of it out of the curve's sight (none without
+    # the screen), ending in the pocket
+    pocket = _positions("pavilion-pocket")
+    assert np.all(pocket[-1] > [5.4 + 0.5, 3.0 + 0.5]) and np.all(pocket[-1] < [6.7, 4.3])
+    _leaves_sight("pavilion-pocket", curve, segments, ~is_arm, hidden_m=2.8, far_m=4.4)
+    # pavilion-line: along the rigid north wall, 6.3 deg oblique to it, its nearest long wall
+    # (and to the screen's east and west arms), all of it in the curve's sight, at least 60 deg
+    # from every heading of the curve
+    wall, oblique, least = _oblique_line("pavilion-line")
+    assert wall == "north" and 2.0 <= oblique <= 12.0 and np.isclose(oblique, 6.299, atol=1e-3)
+    assert least == oblique and walls["north"].reflection is None
+    _line_in_sight("pavilion-line", "pavilion-curve", curve, segments, apart_deg=60.0)
+    lengths = [heldout_path(f"pavilion-{p}").trajectory().length_m
+               for p in ("curve", "line", "pocket")]
+    assert np.allclose(lengths, [7.92, 7.75, 9.65], atol=0.01)
+
+
 def test_trapezoid_has_no_right_angle_and_one_partial_reflector() -> None:
     scene = heldout_scene("trapezoid")
     d = np.diff(scene.segments(), axis=1)[:, 0]
@@ -1944,7 +2153,8 @@ def test_path_stays_inside_with_clearance(name: str) -> None:
                  "fresh14n": FRESH14B_CLEARANCE_M,
                  "fresh14o": FRESH14B_CLEARANCE_M,
                  "fresh14p": FRESH14B_CLEARANCE_M,
-                 "fresh14q": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
+                 "fresh14q": FRESH14B_CLEARANCE_M,
+                 "fresh14r": FRESH14B_CLEARANCE_M}.get(spec.group, CLEARANCE_M)
     assert min_wall_distance_m(scene, trajectory, step_m=0.005) >= clearance
     xy = trajectory.position(np.linspace(0.0, trajectory.duration_s, 500))
     assert np.all(_inside(xy, np.array(INTERIOR[spec.scene])))
