@@ -291,13 +291,26 @@ class LocRun:
     feed: Feed
 
 
+#: Heat maps are kept only to this range (m): the sensor models read none of the columns
+#: beyond their ``max_range_m`` (5 m; the echo model crops its peak search to it plus the
+#: peak window, 0.11 m, and the G models bin to it), and the full 17 m of every block of
+#: every run, on both banks, would not fit in memory (two --part processes: 2 x 17 GB).
+KEEP_RANGE_M = SensorConfig().max_range_m + 0.5
+
+
+def kept(hm: HeatMap) -> HeatMap:
+    """``hm`` cut to its columns within :data:`KEEP_RANGE_M` (a copy: the rest is freed)."""
+    cols = int(np.searchsorted(hm.ranges_m, KEEP_RANGE_M)) + 1
+    return dataclasses.replace(hm, H=np.array(hm.H[:, :cols]), ranges_m=hm.ranges_m[:cols].copy())
+
+
 def loc_run(case: SceneCase, path: str) -> LocRun:
     speed = loc_speed(path)
     clean, _ = simulated(case, path, speed, SNR_DB)
     noisy = with_odometry_noise(clean, zlib.crc32(f"odometry:{path}".encode()))
-    hms = [heatmap_of_run(noisy, k) for k in range(noisy.n_blocks)]
+    hms = [kept(heatmap_of_run(noisy, k)) for k in range(noisy.n_blocks)]
     heard = heatmap_run(noisy, SensorConfig(model="echo"))    # the echo model's bank
-    hms_echo = None if heard is noisy else [heatmap_of_run(heard, k)
+    hms_echo = None if heard is noisy else [kept(heatmap_of_run(heard, k))
                                             for k in range(noisy.n_blocks)]
     v, w, dt = block_odometry(noisy.speed_m_s, noisy.yaw_rate_rad_s, noisy.t_s,
                               noisy.config.block_s)
