@@ -73,12 +73,19 @@ class RefineConfig:
     range_floor_m : float
         Smallest range noise believed, whatever the residuals say (m). 0.2 mm (was 0.5):
         the post-fit residuals of the benchmark's straight blocks scatter by about 0.1 mm in
-        range and 0.003-0.009 in cosine, so floors of 0.5 mm / 0.015 made every refined
-        block's covariance several times its error (median NEES 0.38 on straight blocks);
+        range and 0.003-0.009 in cosine (on the map's 29-row bank), so floors of 0.5 mm /
+        0.015 made every refined block's covariance several times its error (median NEES
+        0.38 on straight blocks);
         the model's own error is now ``model_*`` / ``turn_*`` below, a pose error that more
         echoes do not average away.
     cos_floor : float
-        Smallest Doppler-cosine noise believed (0.006, was 0.015).
+        Smallest Doppler-cosine noise believed (0.006, was 0.015). On the echo model's own
+        58-row bank (:attr:`localization.sensor.SensorConfig.echo_bank_oversample`) the
+        post-fit cosine residuals scatter by 0.0006-0.003 (on the map's 29 rows 0.003-0.009),
+        so the floor now overstates the noise of most blocks; it stays because it also keeps
+        a wrong match from being believed: 0.003 (with ``model_heading_rad`` 1 mrad) put
+        stacks-line's refined blocks 2.5 and 5.9 cm off at a reported sd below 0.2 mm (its
+        mean NEES 4.1 -> 2793; session 43).
     gate_sigma : float
         A peak matches a predicted echo only within this many innovation sigmas (per
         coordinate; range and cosine together as a 2-D distance).
@@ -92,7 +99,11 @@ class RefineConfig:
         one to check the others against. With three (a corridor's two side walls and one
         echo ahead) one biased echo went unnoticed: the T-hall stem's refined track sat
         7-12 mm off while reporting 1 mm (mean NEES 16); with four it falls back to the
-        particles there (0.8).
+        particles there (0.8). Rechecked on the 58-row bank (session 44, tracked runs on
+        ideal maps): 3 lifts the runs whose blocks mostly hold 2-3 echoes into [1, 6]
+        (lobby-line 0.43 -> 1.60, scullery-nook 0.45 -> 1.77, boathouse-open 0.48 -> 1.00)
+        but t-hall-stem-east goes 0.35 -> 32 and parlour-mirror 0.84 -> 45; 2 puts
+        stacks-line at 5363. The particles' wider covariance is the safe side.
     max_nis : float
         Largest mean normalized innovation squared per matched measurement (about 1 when the
         model explains the block) before the update is refused.
